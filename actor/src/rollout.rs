@@ -1,0 +1,252 @@
+//! Rollout workers: step one environment with the acting policy into [`Chunk`]s, and run
+//! deterministic evaluation episodes with a given one-hot code.
+//!
+//! A worker keeps its episode across calls: a chunk ends after exactly the steps asked
+//! for, possibly mid-episode; the learner bootstraps the value at a chunk's last step.
+
+use crate::policy::{Actor, LatentSpec, PolicyWeights};
+use ess_envs::{Env, EnvError};
+use ess_proto::Chunk;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Errors while acting.
+#[derive(Debug, thiserror::Error)]
+pub enum ActorError {
+    /// The environment refused a call.
+    #[error("environment error: {0}")]
+    Env(#[from] EnvError),
+    /// Weights that do not fit the environment.
+    #[error("policy weights do not fit env `{env}`: {what}")]
+    Mismatch {
+        /// The env's name.
+        env: String,
+        /// What does not fit.
+        what: String,
+    },
+    /// A worker thread is gone.
+    #[error("actor worker {index} stopped: {why}")]
+    WorkerGone {
+        /// Worker index.
+        index: usize,
+        /// Why.
+        why: String,
+    },
+}
+
+/// Checks that `w` fits an env of `obs_dim`/`act_dim` and `n_codes` codes.
+pub fn check_fit(env: &dyn Env, w: &PolicyWeights, latent: &LatentSpec) -> Result<(), ActorError> {
+    let s = env.spec();
+    let want_in = s.obs_dim + 1 + latent.n_codes;
+    let mismatch = |what: String| ActorError::Mismatch {
+        env: s.name.clone(),
+        what,
+    };
+    if w.mean.layout().input() != want_in {
+        return Err(mismatch(format!(
+            "policy input is {}, expected obs {} + eps 1 + codes {}",
+            w.mean.layout().input(),
+            s.obs_dim,
+            latent.n_codes
+        )));
+    }
+    if w.mean.layout().output() != s.act_dim || w.log_std.len() != s.act_dim {
+        return Err(mismatch(format!(
+            "policy output {} / log_std {}, expected act_dim {}",
+            w.mean.layout().output(),
+            w.log_std.len(),
+            s.act_dim
+        )));
+    }
+    if w.obs_mean.len() != s.obs_dim || w.obs_std.len() != s.obs_dim {
+        return Err(mismatch("observation normaliser size".into()));
+    }
+    if w.prior_logits.len() != latent.n_codes {
+        return Err(mismatch(format!(
+            "{} prior logits for {} codes",
+            w.prior_logits.len(),
+            latent.n_codes
+        )));
+    }
+    Ok(())
+}
+
+/// One environment with its episode state and random stream.
+pub struct Worker {
+    env: Box<dyn Env>,
+    rng: ChaCha8Rng,
+    obs: Vec<f32>,
+    next: Vec<f32>,
+    code: Vec<f32>,
+    gumbel: Vec<f32>,
+    eps: f32,
+    pre: Vec<f32>,
+    act: Vec<f32>,
+    in_episode: bool,
+}
+
+impl Worker {
+    /// A worker over `env`, its randomness seeded by `seed`.
+    pub fn new(env: Box<dyn Env>, seed: u64, n_codes: usize) -> Self {
+        let s = env.spec().clone();
+        Self {
+            env,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            obs: vec![0.0; s.obs_dim],
+            next: vec![0.0; s.obs_dim],
+            code: vec![0.0; n_codes],
+            gumbel: vec![0.0; n_codes],
+            eps: 0.0,
+            pre: vec![0.0; s.act_dim],
+            act: vec![0.0; s.act_dim],
+            in_episode: false,
+        }
+    }
+
+    /// The environment.
+    pub fn env(&self) -> &dyn Env {
+        self.env.as_ref()
+    }
+
+    /// Steps `n` times under `w`, starting new episodes (and drawing new latents) as needed.
+    pub fn collect(
+        &mut self,
+        w: &PolicyWeights,
+        latent: &LatentSpec,
+        n: usize,
+    ) -> Result<Chunk, ActorError> {
+        check_fit(self.env.as_ref(), w, latent)?;
+        let s = self.env.spec();
+        let mut chunk = Chunk::with_capacity(s.obs_dim, s.act_dim, latent.n_codes, n);
+        chunk.policy_version = w.version;
+        let mut actor = Actor::new(w);
+        for _ in 0..n {
+            if !self.in_episode {
+                let seed = self.rng.random();
+                self.env.reset(seed, &mut self.obs)?;
+                latent.sample_code(
+                    &w.prior_logits,
+                    &mut self.rng,
+                    &mut self.code,
+                    &mut self.gumbel,
+                );
+                self.eps = latent.sample_eps(&mut self.rng);
+                self.in_episode = true;
+            }
+            let logp = actor.sample(
+                w,
+                &self.obs,
+                self.eps,
+                &self.code,
+                &mut self.rng,
+                &mut self.pre,
+                &mut self.act,
+            );
+            let out = self.env.step(&self.act, &mut self.next)?;
+            chunk.obs.extend_from_slice(&self.obs);
+            chunk.next_obs.extend_from_slice(&self.next);
+            chunk.pre_tanh.extend_from_slice(&self.pre);
+            chunk.act.extend_from_slice(&self.act);
+            chunk.logp.push(logp);
+            chunk.code.extend_from_slice(&self.code);
+            chunk.gumbel.extend_from_slice(&self.gumbel);
+            chunk.eps.push(self.eps);
+            chunk.terminated.push(out.terminated);
+            chunk.truncated.push(out.truncated);
+            chunk.env_reward.push(0.0);
+            std::mem::swap(&mut self.obs, &mut self.next);
+            if out.terminated || out.truncated {
+                self.in_episode = false;
+            }
+        }
+        Ok(chunk)
+    }
+}
+
+/// One deterministic evaluation episode.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EvalEpisode {
+    /// The one-hot code index the policy was given.
+    pub code: usize,
+    /// The eps the policy was given.
+    pub eps: f32,
+    /// `[T][obs_dim]` observations before each step.
+    pub obs: Vec<f32>,
+    /// `[T][act_dim]` actions.
+    pub act: Vec<f32>,
+    /// `[T][obs_dim]` observations after each step.
+    pub next_obs: Vec<f32>,
+    /// Number of behaviour modes of the env.
+    pub n_modes: usize,
+    /// `[T][n_modes]` evaluation reward of each mode per step.
+    pub mode_rewards: Vec<f32>,
+}
+
+impl EvalEpisode {
+    /// Number of steps.
+    pub fn len(&self) -> usize {
+        self.mode_rewards
+            .len()
+            .checked_div(self.n_modes)
+            .unwrap_or(0)
+    }
+
+    /// True if no step was taken.
+    pub fn is_empty(&self) -> bool {
+        self.mode_rewards.is_empty()
+    }
+
+    /// Return of mode `k` over the episode.
+    pub fn mode_return(&self, k: usize) -> f32 {
+        self.mode_rewards
+            .iter()
+            .skip(k)
+            .step_by(self.n_modes.max(1))
+            .sum()
+    }
+}
+
+/// Runs one deterministic episode with one-hot code `code` (or zeros for
+/// [`ess_proto::config::LatentPrior::None`]) and shifting variable `eps`.
+pub fn eval_episode(
+    env: &mut dyn Env,
+    w: &PolicyWeights,
+    latent: &LatentSpec,
+    code: usize,
+    eps: f32,
+    seed: u64,
+) -> Result<EvalEpisode, ActorError> {
+    check_fit(env, w, latent)?;
+    let s = env.spec().clone();
+    let mut c = vec![0.0; latent.n_codes];
+    if latent.prior != ess_proto::config::LatentPrior::None {
+        c[code] = 1.0;
+    }
+    let eps = if latent.use_eps { eps } else { 0.0 };
+    let mut actor = Actor::new(w);
+    let mut obs = vec![0.0; s.obs_dim];
+    let mut next = vec![0.0; s.obs_dim];
+    let mut act = vec![0.0; s.act_dim];
+    let mut rew = vec![0.0; s.n_modes];
+    let mut ep = EvalEpisode {
+        code,
+        eps,
+        n_modes: s.n_modes,
+        ..Default::default()
+    };
+    env.reset(seed, &mut obs)?;
+    for _ in 0..s.max_steps {
+        actor.act_deterministic(w, &obs, eps, &c, &mut act);
+        let out = env.step(&act, &mut next)?;
+        env.mode_rewards(&mut rew);
+        ep.obs.extend_from_slice(&obs);
+        ep.act.extend_from_slice(&act);
+        ep.next_obs.extend_from_slice(&next);
+        ep.mode_rewards.extend_from_slice(&rew);
+        std::mem::swap(&mut obs, &mut next);
+        if out.terminated || out.truncated {
+            break;
+        }
+    }
+    Ok(ep)
+}

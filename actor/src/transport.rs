@@ -1,0 +1,133 @@
+//! The seam between the learner and its actors.
+//!
+//! [`RolloutSource`] is what the learner calls once per iteration: publish the current
+//! weights, get back exactly `steps` transitions as one chunk per actor. The threaded
+//! implementation here is the in-process path (and later the test double of the
+//! shared-memory transport between processes).
+
+use crate::policy::{LatentSpec, PolicyWeights};
+use crate::rollout::{ActorError, Worker};
+use ess_proto::Chunk;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::thread::JoinHandle;
+
+/// Where the learner gets its rollouts from.
+pub trait RolloutSource: Send {
+    /// Number of actors.
+    fn n_actors(&self) -> usize;
+    /// Collects exactly `steps` transitions under `weights`, one chunk per actor in
+    /// actor order (actor `i` produces `steps / n + (i < steps % n)` of them).
+    fn collect(
+        &mut self,
+        weights: Arc<PolicyWeights>,
+        steps: usize,
+    ) -> Result<Vec<Chunk>, ActorError>;
+}
+
+/// Steps each actor takes for a rollout of `steps`.
+pub fn split_steps(steps: usize, n: usize) -> Vec<usize> {
+    (0..n)
+        .map(|i| steps / n + usize::from(i < steps % n))
+        .collect()
+}
+
+type Job = (Arc<PolicyWeights>, usize);
+
+struct Handle {
+    jobs: Sender<Job>,
+    results: Receiver<Result<Chunk, ActorError>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+/// Actors as threads of this process, each owning one [`Worker`].
+pub struct ThreadedActors {
+    handles: Vec<Handle>,
+}
+
+impl ThreadedActors {
+    /// Starts one thread per worker.
+    pub fn new(workers: Vec<Worker>, latent: LatentSpec) -> Self {
+        let handles = workers
+            .into_iter()
+            .enumerate()
+            .map(|(i, mut w)| {
+                let (jtx, jrx) = channel::<Job>();
+                let (rtx, rrx) = channel();
+                let thread = std::thread::Builder::new()
+                    .name(format!("ess-actor-{i}"))
+                    .spawn(move || {
+                        while let Ok((weights, n)) = jrx.recv() {
+                            if rtx.send(w.collect(&weights, &latent, n)).is_err() {
+                                break;
+                            }
+                        }
+                    })
+                    .ok();
+                Handle {
+                    jobs: jtx,
+                    results: rrx,
+                    thread,
+                }
+            })
+            .collect();
+        Self { handles }
+    }
+}
+
+impl RolloutSource for ThreadedActors {
+    fn n_actors(&self) -> usize {
+        self.handles.len()
+    }
+
+    fn collect(
+        &mut self,
+        weights: Arc<PolicyWeights>,
+        steps: usize,
+    ) -> Result<Vec<Chunk>, ActorError> {
+        let split = split_steps(steps, self.handles.len());
+        for (i, (h, &n)) in self.handles.iter().zip(&split).enumerate() {
+            h.jobs
+                .send((weights.clone(), n))
+                .map_err(|_| ActorError::WorkerGone {
+                    index: i,
+                    why: "job channel closed".into(),
+                })?;
+        }
+        self.handles
+            .iter()
+            .enumerate()
+            .map(|(i, h)| {
+                h.results.recv().map_err(|_| ActorError::WorkerGone {
+                    index: i,
+                    why: "result channel closed".into(),
+                })?
+            })
+            .collect()
+    }
+}
+
+impl Drop for ThreadedActors {
+    fn drop(&mut self) {
+        for h in &mut self.handles {
+            // Closing the job channel ends the thread's loop.
+            let (tx, _) = channel();
+            drop(std::mem::replace(&mut h.jobs, tx));
+            if let Some(t) = h.thread.take() {
+                let _ = t.join();
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn split_steps_sums_to_the_rollout_size() {
+        assert_eq!(split_steps(10, 3), vec![4, 3, 3]);
+        assert_eq!(split_steps(5000, 2).iter().sum::<usize>(), 5000);
+        assert_eq!(split_steps(1, 2), vec![1, 0]);
+    }
+}

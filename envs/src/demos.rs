@@ -1,0 +1,1466 @@
+//! Demonstration datasets: imbalanced unlabeled expert data plus a small balanced
+//! labeled set (paper Sec. 4, "Multi-modal demonstrations preparation"), and their
+//! safetensors file format.
+//!
+//! # Generation ([`generate_demos`])
+//!
+//! - **Unlabeled split.** Mode `k` contributes `max(1, round(majority_episodes * w_k))`
+//!   whole expert episodes, `w = mode_weights(n_modes, imbalance_ratio)`. All episodes
+//!   are shuffled together (episode order, seeded; each episode stays contiguous) and
+//!   renumbered `0..`. Every step keeps its true mode in `mode`: only full-label
+//!   baselines and analysis may read it, never semi-supervised training.
+//! - **Labeled split.** Balanced: each mode gets
+//!   `ceil(label_ratio * n_unlabeled_steps / n_modes)` steps from *fresh* expert episodes
+//!   of that mode (whole episodes, the last one cut to length); `mode` is the label.
+//!
+//! Episode seeds come from one `ChaCha8Rng` seeded with `DemoSpec::seed`, so a spec
+//! always yields the same dataset.
+//!
+//! # File format
+//!
+//! A standard safetensors file (`safetensors.numpy.load_file` opens it). For each split
+//! `S` in `unlabeled`, `labeled` with `n` rows:
+//!
+//! | tensor         | dtype | shape          |
+//! |----------------|-------|----------------|
+//! | `S.obs`        | F32   | `[n, obs_dim]` |
+//! | `S.act`        | F32   | `[n, act_dim]` |
+//! | `S.next_obs`   | F32   | `[n, obs_dim]` |
+//! | `S.mode`       | I32   | `[n]`          |
+//! | `S.episode`    | I32   | `[n]`          |
+//! | `S.reward`     | F32   | `[n]`          |
+//!
+//! Header metadata: `format = "ess-demos"`, `format_version = "1"`, `meta` = the
+//! [`DemoMeta`] as JSON. [`Demos::load`] validates all of it and names the offending
+//! tensor, row, field or value (and the file) in its error.
+
+use std::collections::{BTreeSet, HashMap};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde::{Deserialize, Serialize};
+
+use crate::env::{EnvError, ScriptedExpert, make_env};
+
+/// Value of the `format` header key.
+pub const FORMAT: &str = "ess-demos";
+/// The only supported `format_version`.
+pub const FORMAT_VERSION: u32 = 1;
+/// Split names, in file order.
+const SPLITS: [&str; 2] = ["unlabeled", "labeled"];
+
+/// What dataset to generate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoSpec {
+    /// Environment name (see [`make_env`]).
+    pub env: String,
+    /// Number of behaviour modes.
+    pub n_modes: usize,
+    /// Labeled steps as a fraction of unlabeled steps, in `(0, 1]` (paper default for
+    /// the 2D trajectory: 0.01).
+    pub label_ratio: f64,
+    /// Frequency ratio of the most to the least frequent mode, `>= 1` (paper: 100).
+    pub imbalance_ratio: f64,
+    /// Unlabeled episodes of each most frequent mode, `>= 1`.
+    pub majority_episodes: usize,
+    /// Seed of every random choice of the generation.
+    pub seed: u64,
+}
+
+/// Transitions of one split, row-major.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DemoSplit {
+    /// Observations, `[n][obs_dim]`.
+    pub obs: Vec<f32>,
+    /// Actions, `[n][act_dim]`.
+    pub act: Vec<f32>,
+    /// Next observations, `[n][obs_dim]`.
+    pub next_obs: Vec<f32>,
+    /// True behaviour mode (the label, in the labeled split), `[n]`.
+    pub mode: Vec<u32>,
+    /// Episode index within the split, `[n]`.
+    pub episode: Vec<u32>,
+    /// Evaluation reward of the episode's own mode, per step, `[n]`.
+    pub reward: Vec<f32>,
+}
+
+impl DemoSplit {
+    /// Number of transitions.
+    pub fn len(&self) -> usize {
+        self.mode.len()
+    }
+
+    /// True when the split holds no transition.
+    pub fn is_empty(&self) -> bool {
+        self.mode.is_empty()
+    }
+
+    /// Number of episodes: one past the largest episode index (0 when empty).
+    pub fn n_episodes(&self) -> usize {
+        self.episode.iter().max().map_or(0, |&e| e as usize + 1)
+    }
+
+    /// Appends `other`, offsetting its episode indices by [`Self::n_episodes`] so
+    /// episodes stay distinct.
+    pub fn extend(&mut self, other: &DemoSplit) {
+        let offset = self.n_episodes() as u32;
+        self.obs.extend_from_slice(&other.obs);
+        self.act.extend_from_slice(&other.act);
+        self.next_obs.extend_from_slice(&other.next_obs);
+        self.mode.extend_from_slice(&other.mode);
+        self.episode
+            .extend(other.episode.iter().map(|&e| e + offset));
+        self.reward.extend_from_slice(&other.reward);
+    }
+
+    /// Keeps the first `n` transitions (no-op when `n >= len`).
+    fn truncate(&mut self, n: usize, obs_dim: usize, act_dim: usize) {
+        if n >= self.len() {
+            return;
+        }
+        self.obs.truncate(n * obs_dim);
+        self.act.truncate(n * act_dim);
+        self.next_obs.truncate(n * obs_dim);
+        self.mode.truncate(n);
+        self.episode.truncate(n);
+        self.reward.truncate(n);
+    }
+
+    /// Steps per mode (`n_modes` entries; out-of-range modes are not counted).
+    pub fn steps_per_mode(&self, n_modes: usize) -> Vec<usize> {
+        let mut counts = vec![0; n_modes];
+        for &m in &self.mode {
+            if let Some(c) = counts.get_mut(m as usize) {
+                *c += 1;
+            }
+        }
+        counts
+    }
+
+    /// Distinct episodes per mode (an episode counts for the mode of its rows).
+    pub fn episodes_per_mode(&self, n_modes: usize) -> Vec<usize> {
+        let pairs: BTreeSet<(u32, u32)> = self
+            .episode
+            .iter()
+            .zip(&self.mode)
+            .map(|(&e, &m)| (e, m))
+            .collect();
+        let mut counts = vec![0; n_modes];
+        for (_, m) in pairs {
+            if let Some(c) = counts.get_mut(m as usize) {
+                *c += 1;
+            }
+        }
+        counts
+    }
+}
+
+/// Description of a dataset, stored as JSON in the file header.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoMeta {
+    /// File format version ([`FORMAT_VERSION`]).
+    pub format_version: u32,
+    /// Environment name.
+    pub env: String,
+    /// Observation length.
+    pub obs_dim: usize,
+    /// Action length.
+    pub act_dim: usize,
+    /// Number of behaviour modes.
+    pub n_modes: usize,
+    /// Episode length of the env (`max_steps`).
+    pub episode_len: usize,
+    /// [`DemoSpec::label_ratio`].
+    pub label_ratio: f64,
+    /// [`DemoSpec::imbalance_ratio`].
+    pub imbalance_ratio: f64,
+    /// [`DemoSpec::majority_episodes`].
+    pub majority_episodes: usize,
+    /// [`DemoSpec::seed`].
+    pub seed: u64,
+    /// Unlabeled episodes of each mode.
+    pub unlabeled_episodes_per_mode: Vec<usize>,
+    /// Unlabeled steps of each mode.
+    pub unlabeled_steps_per_mode: Vec<usize>,
+    /// Labeled steps of each mode.
+    pub labeled_steps_per_mode: Vec<usize>,
+    /// Program that wrote the file, `"ess <version>"`.
+    pub generator: String,
+}
+
+/// A demonstration dataset.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Demos {
+    /// Description and counts.
+    pub meta: DemoMeta,
+    /// Imbalanced unlabeled demonstrations (with true modes for analysis only).
+    pub unlabeled: DemoSplit,
+    /// Balanced labeled demonstrations.
+    pub labeled: DemoSplit,
+}
+
+/// Errors of dataset generation, saving and loading. Load errors name the file.
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    /// A [`DemoSpec`] field is invalid.
+    #[error("invalid demo spec: {field} = {value}: {reason}")]
+    BadSpec {
+        /// Field name.
+        field: &'static str,
+        /// Its value, formatted.
+        value: String,
+        /// Why it is rejected.
+        reason: &'static str,
+    },
+    /// The environment failed.
+    #[error("environment error: {0}")]
+    Env(#[from] EnvError),
+    /// Reading or writing the file failed.
+    #[error("{path}: I/O error: {source}")]
+    Io {
+        /// File involved.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// The safetensors container could not be built.
+    #[error("{path}: cannot serialize safetensors: {reason}")]
+    Serialize {
+        /// File being written.
+        path: PathBuf,
+        /// Underlying error, formatted.
+        reason: String,
+    },
+    /// The file is not a (complete) safetensors file.
+    #[error("{path}: not a valid safetensors file (truncated or corrupt): {reason}")]
+    NotSafetensors {
+        /// File read.
+        path: PathBuf,
+        /// Parser message.
+        reason: String,
+    },
+    /// A header metadata key is missing.
+    #[error("{path}: header metadata key {key:?} is missing")]
+    MissingHeaderKey {
+        /// File read.
+        path: PathBuf,
+        /// Missing key.
+        key: &'static str,
+    },
+    /// The `format` header key has the wrong value.
+    #[error("{path}: header format = {found:?}, expected {expected:?}")]
+    WrongFormat {
+        /// File read.
+        path: PathBuf,
+        /// Value found.
+        found: String,
+        /// Value expected.
+        expected: &'static str,
+    },
+    /// The `format_version` is not supported.
+    #[error("{path}: unsupported format_version {found:?}; this build reads version {supported}")]
+    UnsupportedVersion {
+        /// File read.
+        path: PathBuf,
+        /// Version found.
+        found: String,
+        /// Version supported.
+        supported: u32,
+    },
+    /// The `meta` header key is not valid [`DemoMeta`] JSON.
+    #[error("{path}: header meta is not valid DemoMeta JSON: {error}")]
+    BadMeta {
+        /// File read.
+        path: PathBuf,
+        /// JSON error, formatted.
+        error: String,
+    },
+    /// A `meta` field is inconsistent in itself.
+    #[error("{path}: meta.{field} = {value}: {reason}")]
+    BadMetaField {
+        /// File read.
+        path: PathBuf,
+        /// Field name.
+        field: &'static str,
+        /// Its value, formatted.
+        value: String,
+        /// Why it is rejected.
+        reason: String,
+    },
+    /// A required tensor is missing.
+    #[error("{path}: tensor {tensor:?} is missing")]
+    MissingTensor {
+        /// File read.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: String,
+    },
+    /// A tensor has the wrong dtype.
+    #[error("{path}: tensor {tensor:?} has dtype {got}, expected {expected}")]
+    WrongDtype {
+        /// File read.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: String,
+        /// Expected dtype.
+        expected: String,
+        /// Dtype found.
+        got: String,
+    },
+    /// A tensor has the wrong shape.
+    #[error("{path}: tensor {tensor:?} has shape {got:?}, expected {expected}")]
+    WrongShape {
+        /// File read.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: String,
+        /// Expected shape, formatted (`n` for any row count).
+        expected: String,
+        /// Shape found.
+        got: Vec<usize>,
+    },
+    /// Tensors of one split disagree on the row count.
+    #[error("{path}: tensor {tensor:?} has {rows} rows but {split}.mode has {expected_rows}")]
+    RowCountMismatch {
+        /// File read.
+        path: PathBuf,
+        /// Split name.
+        split: &'static str,
+        /// Tensor name.
+        tensor: String,
+        /// Its row count.
+        rows: usize,
+        /// Row count of `{split}.mode`.
+        expected_rows: usize,
+    },
+    /// A mode/label value is negative or `>= n_modes`.
+    #[error("{path}: tensor {tensor:?} row {row}: mode {value} is out of range 0..{n_modes}")]
+    ModeOutOfRange {
+        /// File read.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: String,
+        /// Row index.
+        row: usize,
+        /// Value found.
+        value: i64,
+        /// Number of modes.
+        n_modes: usize,
+    },
+    /// An episode index is negative.
+    #[error("{path}: tensor {tensor:?} row {row}: episode index {value} is negative")]
+    NegativeEpisode {
+        /// File read.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: String,
+        /// Row index.
+        row: usize,
+        /// Value found.
+        value: i64,
+    },
+    /// A float is NaN or infinite.
+    #[error("{path}: tensor {tensor:?} row {row} holds a non-finite value {value}")]
+    NonFinite {
+        /// File read.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: String,
+        /// Row index.
+        row: usize,
+        /// Value found.
+        value: f32,
+    },
+    /// A count in meta disagrees with the arrays.
+    #[error("{path}: meta.{field} = {in_meta:?} but the arrays give {in_arrays:?}")]
+    CountMismatch {
+        /// File read.
+        path: PathBuf,
+        /// Meta field name.
+        field: &'static str,
+        /// Value in meta.
+        in_meta: Vec<usize>,
+        /// Value computed from the arrays.
+        in_arrays: Vec<usize>,
+    },
+}
+
+/// Relative frequency of each mode in the unlabeled data: the largest is 1.0, the
+/// smallest `1 / imbalance_ratio`.
+///
+/// Rule: with `n_modes <= 3` each mode is its own group; otherwise modes go in groups
+/// of two (modes 0 and 1 first, then 2 and 3, ...; an odd last mode is alone). With
+/// `G` groups, group `g` gets weight `imbalance_ratio^(-g / (G - 1))` (1.0 when
+/// `G == 1`). Examples with ratio 100: 4 modes `[1, 1, 0.01, 0.01]`; 6 modes
+/// `[1, 1, 0.1, 0.1, 0.01, 0.01]`; 3 modes `[1, 0.1, 0.01]`; 2 modes `[1, 0.01]`.
+pub fn mode_weights(n_modes: usize, imbalance_ratio: f64) -> Vec<f64> {
+    let group_size = if n_modes <= 3 { 1 } else { 2 };
+    let n_groups = n_modes.div_ceil(group_size);
+    (0..n_modes)
+        .map(|k| {
+            let g = k / group_size;
+            if n_groups <= 1 {
+                1.0
+            } else {
+                imbalance_ratio.powf(-(g as f64) / (n_groups - 1) as f64)
+            }
+        })
+        .collect()
+}
+
+/// Labeled steps per mode: `ceil(label_ratio * n_unlabeled_steps / n_modes)`.
+pub fn labeled_steps_per_mode(label_ratio: f64, n_unlabeled_steps: usize, n_modes: usize) -> usize {
+    (label_ratio * n_unlabeled_steps as f64 / n_modes as f64).ceil() as usize
+}
+
+/// Rolls one expert episode of `mode` from `env.reset(seed)` until it ends. The expert's
+/// own randomness is a `ChaCha8Rng` seeded with `seed` on stream 1 (the env's reset
+/// uses stream 0). Episode indices are 0; `reward` is the evaluation reward of `mode`.
+pub fn expert_episode(
+    env: &mut dyn ScriptedExpert,
+    mode: usize,
+    seed: u64,
+) -> Result<DemoSplit, EnvError> {
+    let spec = env.spec().clone();
+    if mode >= spec.n_modes {
+        return Err(EnvError::ModeOutOfRange {
+            mode,
+            n_modes: spec.n_modes,
+        });
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(1);
+    let mut obs = vec![0.0; spec.obs_dim];
+    let mut next = vec![0.0; spec.obs_dim];
+    let mut act = vec![0.0; spec.act_dim];
+    let mut rewards = vec![0.0; spec.n_modes];
+    let mut split = DemoSplit::default();
+    env.reset(seed, &mut obs)?;
+    // The env's own limit ends the loop; the bound guards against a broken env.
+    for _ in 0..spec.max_steps.max(1) {
+        env.expert_action(mode, &mut rng, &mut act)?;
+        let out = env.step(&act, &mut next)?;
+        env.mode_rewards(&mut rewards);
+        split.obs.extend_from_slice(&obs);
+        split.act.extend_from_slice(&act);
+        split.next_obs.extend_from_slice(&next);
+        split.mode.push(mode as u32);
+        split.episode.push(0);
+        split.reward.push(rewards[mode]);
+        if out.terminated || out.truncated {
+            break;
+        }
+        std::mem::swap(&mut obs, &mut next);
+    }
+    Ok(split)
+}
+
+fn validate_spec(spec: &DemoSpec) -> Result<(), DemoError> {
+    if !(spec.label_ratio > 0.0 && spec.label_ratio <= 1.0) {
+        return Err(DemoError::BadSpec {
+            field: "label_ratio",
+            value: spec.label_ratio.to_string(),
+            reason: "must lie in (0, 1]",
+        });
+    }
+    if !(spec.imbalance_ratio.is_finite() && spec.imbalance_ratio >= 1.0) {
+        return Err(DemoError::BadSpec {
+            field: "imbalance_ratio",
+            value: spec.imbalance_ratio.to_string(),
+            reason: "must be finite and at least 1",
+        });
+    }
+    if spec.n_modes < 2 {
+        return Err(DemoError::BadSpec {
+            field: "n_modes",
+            value: spec.n_modes.to_string(),
+            reason: "must be at least 2",
+        });
+    }
+    if spec.majority_episodes < 1 {
+        return Err(DemoError::BadSpec {
+            field: "majority_episodes",
+            value: spec.majority_episodes.to_string(),
+            reason: "must be at least 1",
+        });
+    }
+    Ok(())
+}
+
+/// Generates the dataset described by `spec` (see the module docs for the rules).
+pub fn generate_demos(spec: &DemoSpec) -> Result<Demos, DemoError> {
+    validate_spec(spec)?;
+    let mut env = make_env(&spec.env, spec.n_modes)?;
+    let env_spec = env.spec().clone();
+    let n_modes = spec.n_modes;
+    let mut seeds = ChaCha8Rng::seed_from_u64(spec.seed);
+
+    let episodes_per_mode: Vec<usize> = mode_weights(n_modes, spec.imbalance_ratio)
+        .iter()
+        .map(|w| ((spec.majority_episodes as f64 * w).round() as usize).max(1))
+        .collect();
+    let mut episodes = Vec::with_capacity(episodes_per_mode.iter().sum());
+    for (mode, &count) in episodes_per_mode.iter().enumerate() {
+        for _ in 0..count {
+            episodes.push(expert_episode(env.as_mut(), mode, seeds.random())?);
+        }
+    }
+    episodes.shuffle(&mut seeds);
+    let mut unlabeled = DemoSplit::default();
+    for ep in &episodes {
+        unlabeled.extend(ep);
+    }
+
+    let per_mode = labeled_steps_per_mode(spec.label_ratio, unlabeled.len(), n_modes);
+    let mut labeled = DemoSplit::default();
+    for mode in 0..n_modes {
+        let mut part = DemoSplit::default();
+        while part.len() < per_mode {
+            part.extend(&expert_episode(env.as_mut(), mode, seeds.random())?);
+        }
+        part.truncate(per_mode, env_spec.obs_dim, env_spec.act_dim);
+        labeled.extend(&part);
+    }
+
+    let meta = DemoMeta {
+        format_version: FORMAT_VERSION,
+        env: spec.env.clone(),
+        obs_dim: env_spec.obs_dim,
+        act_dim: env_spec.act_dim,
+        n_modes,
+        episode_len: env_spec.max_steps,
+        label_ratio: spec.label_ratio,
+        imbalance_ratio: spec.imbalance_ratio,
+        majority_episodes: spec.majority_episodes,
+        seed: spec.seed,
+        unlabeled_episodes_per_mode: episodes_per_mode,
+        unlabeled_steps_per_mode: unlabeled.steps_per_mode(n_modes),
+        labeled_steps_per_mode: labeled.steps_per_mode(n_modes),
+        generator: format!("ess {}", env!("CARGO_PKG_VERSION")),
+    };
+    tracing::info!(
+        env = %spec.env,
+        unlabeled_steps = unlabeled.len(),
+        labeled_steps = labeled.len(),
+        episodes_per_mode = ?meta.unlabeled_episodes_per_mode,
+        "generated demonstrations"
+    );
+    Ok(Demos {
+        meta,
+        unlabeled,
+        labeled,
+    })
+}
+
+fn f32_bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Encodes `u32` values as little-endian I32 (values above `i32::MAX` saturate, which
+/// the loader then rejects as out of range).
+fn i32_bytes(v: &[u32]) -> Vec<u8> {
+    v.iter()
+        .flat_map(|&x| i32::try_from(x).unwrap_or(i32::MAX).to_le_bytes())
+        .collect()
+}
+
+/// Builds the header metadata of a demos file from its meta JSON.
+fn header(meta_json: String) -> HashMap<String, String> {
+    HashMap::from([
+        ("format".to_owned(), FORMAT.to_owned()),
+        ("format_version".to_owned(), FORMAT_VERSION.to_string()),
+        ("meta".to_owned(), meta_json),
+    ])
+}
+
+/// One tensor to write: name, dtype, shape, bytes.
+type RawTensor = (String, Dtype, Vec<usize>, Vec<u8>);
+
+fn split_tensors(name: &str, s: &DemoSplit, meta: &DemoMeta) -> Vec<RawTensor> {
+    let n = s.len();
+    vec![
+        (
+            format!("{name}.obs"),
+            Dtype::F32,
+            vec![n, meta.obs_dim],
+            f32_bytes(&s.obs),
+        ),
+        (
+            format!("{name}.act"),
+            Dtype::F32,
+            vec![n, meta.act_dim],
+            f32_bytes(&s.act),
+        ),
+        (
+            format!("{name}.next_obs"),
+            Dtype::F32,
+            vec![n, meta.obs_dim],
+            f32_bytes(&s.next_obs),
+        ),
+        (
+            format!("{name}.mode"),
+            Dtype::I32,
+            vec![n],
+            i32_bytes(&s.mode),
+        ),
+        (
+            format!("{name}.episode"),
+            Dtype::I32,
+            vec![n],
+            i32_bytes(&s.episode),
+        ),
+        (
+            format!("{name}.reward"),
+            Dtype::F32,
+            vec![n],
+            f32_bytes(&s.reward),
+        ),
+    ]
+}
+
+impl Demos {
+    /// Serializes to safetensors bytes (see the module docs for the layout).
+    fn to_bytes(&self, path: &Path) -> Result<Vec<u8>, DemoError> {
+        let ser_err = |reason: String| DemoError::Serialize {
+            path: path.to_owned(),
+            reason,
+        };
+        let meta_json = serde_json::to_string(&self.meta).map_err(|e| ser_err(e.to_string()))?;
+        let mut raw = split_tensors(SPLITS[0], &self.unlabeled, &self.meta);
+        raw.extend(split_tensors(SPLITS[1], &self.labeled, &self.meta));
+        let mut views = Vec::with_capacity(raw.len());
+        for (name, dtype, shape, bytes) in &raw {
+            let view = TensorView::new(*dtype, shape.clone(), bytes)
+                .map_err(|e| ser_err(format!("tensor {name:?}: {e}")))?;
+            views.push((name.clone(), view));
+        }
+        safetensors::serialize(views, Some(header(meta_json))).map_err(|e| ser_err(e.to_string()))
+    }
+
+    /// Writes the dataset to `path` atomically: a temporary file in the same directory
+    /// is written, synced and renamed over `path`, so no half-written file is ever seen.
+    pub fn save(&self, path: &Path) -> Result<(), DemoError> {
+        let bytes = self.to_bytes(path)?;
+        let io_err = |p: &Path| {
+            let p = p.to_owned();
+            move |source| DemoError::Io { path: p, source }
+        };
+        let file_name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "demos".to_owned());
+        let tmp = path.with_file_name(format!(".{file_name}.tmp-{}", std::process::id()));
+        let write = || -> std::io::Result<()> {
+            let mut f = std::fs::File::create(&tmp)?;
+            f.write_all(&bytes)?;
+            f.sync_all()
+        };
+        if let Err(e) = write() {
+            // Best effort: the temporary file is garbage now.
+            let _ = std::fs::remove_file(&tmp);
+            return Err(io_err(&tmp)(e));
+        }
+        if let Err(e) = std::fs::rename(&tmp, path) {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(io_err(path)(e));
+        }
+        tracing::debug!(path = %path.display(), bytes = bytes.len(), "saved demonstrations");
+        Ok(())
+    }
+
+    /// Reads and fully validates a dataset written by [`Demos::save`].
+    pub fn load(path: &Path) -> Result<Demos, DemoError> {
+        let bytes = std::fs::read(path).map_err(|source| DemoError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Parses and validates safetensors bytes; `path` is only used in errors.
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Demos, DemoError> {
+        let p = || path.to_owned();
+        let not_st = |e: safetensors::SafeTensorError| DemoError::NotSafetensors {
+            path: p(),
+            reason: e.to_string(),
+        };
+        let st = SafeTensors::deserialize(bytes).map_err(not_st)?;
+        let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(not_st)?;
+        let empty = HashMap::new();
+        let header = metadata.metadata().as_ref().unwrap_or(&empty);
+        let get = |key: &'static str| {
+            header
+                .get(key)
+                .ok_or(DemoError::MissingHeaderKey { path: p(), key })
+        };
+        let format = get("format")?;
+        if format != FORMAT {
+            return Err(DemoError::WrongFormat {
+                path: p(),
+                found: format.clone(),
+                expected: FORMAT,
+            });
+        }
+        let version = get("format_version")?;
+        if version.trim().parse::<u32>().ok() != Some(FORMAT_VERSION) {
+            return Err(DemoError::UnsupportedVersion {
+                path: p(),
+                found: version.clone(),
+                supported: FORMAT_VERSION,
+            });
+        }
+        let meta: DemoMeta =
+            serde_json::from_str(get("meta")?).map_err(|e| DemoError::BadMeta {
+                path: p(),
+                error: e.to_string(),
+            })?;
+        validate_meta(&meta, path)?;
+        let unlabeled = read_split(&st, SPLITS[0], &meta, path)?;
+        let labeled = read_split(&st, SPLITS[1], &meta, path)?;
+        let checks = [
+            (
+                "unlabeled_episodes_per_mode",
+                &meta.unlabeled_episodes_per_mode,
+                unlabeled.episodes_per_mode(meta.n_modes),
+            ),
+            (
+                "unlabeled_steps_per_mode",
+                &meta.unlabeled_steps_per_mode,
+                unlabeled.steps_per_mode(meta.n_modes),
+            ),
+            (
+                "labeled_steps_per_mode",
+                &meta.labeled_steps_per_mode,
+                labeled.steps_per_mode(meta.n_modes),
+            ),
+        ];
+        for (field, in_meta, in_arrays) in checks {
+            if *in_meta != in_arrays {
+                return Err(DemoError::CountMismatch {
+                    path: p(),
+                    field,
+                    in_meta: in_meta.clone(),
+                    in_arrays,
+                });
+            }
+        }
+        Ok(Demos {
+            meta,
+            unlabeled,
+            labeled,
+        })
+    }
+}
+
+fn validate_meta(meta: &DemoMeta, path: &Path) -> Result<(), DemoError> {
+    let bad = |field: &'static str, value: String, reason: String| DemoError::BadMetaField {
+        path: path.to_owned(),
+        field,
+        value,
+        reason,
+    };
+    if meta.format_version != FORMAT_VERSION {
+        return Err(DemoError::UnsupportedVersion {
+            path: path.to_owned(),
+            found: meta.format_version.to_string(),
+            supported: FORMAT_VERSION,
+        });
+    }
+    for (field, value) in [
+        ("obs_dim", meta.obs_dim),
+        ("act_dim", meta.act_dim),
+        ("n_modes", meta.n_modes),
+    ] {
+        if value == 0 {
+            return Err(bad(field, "0".into(), "must be positive".into()));
+        }
+    }
+    if meta.n_modes > i32::MAX as usize {
+        return Err(bad(
+            "n_modes",
+            meta.n_modes.to_string(),
+            "does not fit an I32 mode tensor".into(),
+        ));
+    }
+    for (field, v) in [
+        (
+            "unlabeled_episodes_per_mode",
+            &meta.unlabeled_episodes_per_mode,
+        ),
+        ("unlabeled_steps_per_mode", &meta.unlabeled_steps_per_mode),
+        ("labeled_steps_per_mode", &meta.labeled_steps_per_mode),
+    ] {
+        if v.len() != meta.n_modes {
+            return Err(bad(
+                field,
+                format!("{v:?}"),
+                format!(
+                    "has {} entries, expected n_modes = {}",
+                    v.len(),
+                    meta.n_modes
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Checks dtype and shape of `split.field` and returns its data bytes. `cols` is
+/// `None` for a 1-D tensor `[rows]`, `Some(d)` for `[rows, d]`; `rows` is `None` when
+/// this tensor defines the split's row count.
+fn tensor_bytes<'a>(
+    st: &SafeTensors<'a>,
+    split: &'static str,
+    field: &str,
+    dtype: Dtype,
+    rows: Option<usize>,
+    cols: Option<usize>,
+    path: &Path,
+) -> Result<(usize, &'a [u8]), DemoError> {
+    let tensor = format!("{split}.{field}");
+    let view = st.tensor(&tensor).map_err(|_| DemoError::MissingTensor {
+        path: path.to_owned(),
+        tensor: tensor.clone(),
+    })?;
+    if view.dtype() != dtype {
+        return Err(DemoError::WrongDtype {
+            path: path.to_owned(),
+            tensor,
+            expected: format!("{dtype:?}"),
+            got: format!("{:?}", view.dtype()),
+        });
+    }
+    let shape = view.shape();
+    let shape_ok = match cols {
+        None => shape.len() == 1,
+        Some(d) => shape.len() == 2 && shape[1] == d,
+    };
+    if !shape_ok {
+        let expected = match cols {
+            None => "[n]".to_owned(),
+            Some(d) => format!("[n, {d}]"),
+        };
+        return Err(DemoError::WrongShape {
+            path: path.to_owned(),
+            tensor,
+            expected,
+            got: shape.to_vec(),
+        });
+    }
+    let n = shape[0];
+    if let Some(expected_rows) = rows
+        && n != expected_rows
+    {
+        return Err(DemoError::RowCountMismatch {
+            path: path.to_owned(),
+            split,
+            tensor,
+            rows: n,
+            expected_rows,
+        });
+    }
+    Ok((n, view.data()))
+}
+
+fn decode_f32(bytes: &[u8], cols: usize, tensor: &str, path: &Path) -> Result<Vec<f32>, DemoError> {
+    let v: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(DemoError::NonFinite {
+            path: path.to_owned(),
+            tensor: tensor.to_owned(),
+            row: i / cols.max(1),
+            value: v[i],
+        });
+    }
+    Ok(v)
+}
+
+fn decode_i32(bytes: &[u8]) -> Vec<i32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+fn read_split(
+    st: &SafeTensors<'_>,
+    split: &'static str,
+    meta: &DemoMeta,
+    path: &Path,
+) -> Result<DemoSplit, DemoError> {
+    let name = |field: &str| format!("{split}.{field}");
+    let (n, mode_bytes) = tensor_bytes(st, split, "mode", Dtype::I32, None, None, path)?;
+    let rows = Some(n);
+    let f32_tensor = |field: &str, cols: Option<usize>| -> Result<Vec<f32>, DemoError> {
+        let (_, b) = tensor_bytes(st, split, field, Dtype::F32, rows, cols, path)?;
+        decode_f32(b, cols.unwrap_or(1), &name(field), path)
+    };
+    let obs = f32_tensor("obs", Some(meta.obs_dim))?;
+    let act = f32_tensor("act", Some(meta.act_dim))?;
+    let next_obs = f32_tensor("next_obs", Some(meta.obs_dim))?;
+    let reward = f32_tensor("reward", None)?;
+    let (_, episode_bytes) = tensor_bytes(st, split, "episode", Dtype::I32, rows, None, path)?;
+
+    let mut mode = Vec::with_capacity(n);
+    for (row, v) in decode_i32(mode_bytes).into_iter().enumerate() {
+        match u32::try_from(v) {
+            Ok(m) if (m as usize) < meta.n_modes => mode.push(m),
+            _ => {
+                return Err(DemoError::ModeOutOfRange {
+                    path: path.to_owned(),
+                    tensor: name("mode"),
+                    row,
+                    value: i64::from(v),
+                    n_modes: meta.n_modes,
+                });
+            }
+        }
+    }
+    let mut episode = Vec::with_capacity(n);
+    for (row, v) in decode_i32(episode_bytes).into_iter().enumerate() {
+        let e = u32::try_from(v).map_err(|_| DemoError::NegativeEpisode {
+            path: path.to_owned(),
+            tensor: name("episode"),
+            row,
+            value: i64::from(v),
+        })?;
+        episode.push(e);
+    }
+    Ok(DemoSplit {
+        obs,
+        act,
+        next_obs,
+        mode,
+        episode,
+        reward,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn spec(majority: usize, label_ratio: f64) -> DemoSpec {
+        DemoSpec {
+            env: "traj2d".into(),
+            n_modes: 4,
+            label_ratio,
+            imbalance_ratio: 100.0,
+            majority_episodes: majority,
+            seed: 42,
+        }
+    }
+
+    fn small_demos() -> Demos {
+        generate_demos(&spec(4, 0.1)).expect("generate")
+    }
+
+    fn close(a: &[f64], b: &[f64]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12)
+    }
+
+    #[test]
+    fn mode_weights_follow_the_group_rule() {
+        assert!(close(&mode_weights(4, 100.0), &[1.0, 1.0, 0.01, 0.01]));
+        assert!(close(
+            &mode_weights(6, 100.0),
+            &[1.0, 1.0, 0.1, 0.1, 0.01, 0.01]
+        ));
+        assert!(close(&mode_weights(3, 100.0), &[1.0, 0.1, 0.01]));
+        assert!(close(&mode_weights(2, 100.0), &[1.0, 0.01]));
+        assert!(close(&mode_weights(1, 100.0), &[1.0]));
+        assert!(close(&mode_weights(4, 1.0), &[1.0; 4]));
+    }
+
+    #[test]
+    fn imbalanced_demos_have_the_expected_episode_counts() {
+        let demos = generate_demos(&spec(200, 0.01)).expect("generate");
+        assert_eq!(demos.meta.unlabeled_episodes_per_mode, vec![200, 200, 2, 2]);
+        assert_eq!(demos.unlabeled.episodes_per_mode(4), vec![200, 200, 2, 2]);
+        assert_eq!(
+            demos.meta.unlabeled_steps_per_mode,
+            vec![20000, 20000, 200, 200]
+        );
+        assert_eq!(demos.unlabeled.n_episodes(), 404);
+    }
+
+    #[test]
+    fn labeled_steps_per_mode_is_the_ceiling_of_the_ratio_share() {
+        assert_eq!(labeled_steps_per_mode(0.01, 40400, 4), 101);
+        assert_eq!(labeled_steps_per_mode(0.01, 40401, 4), 102);
+        assert_eq!(labeled_steps_per_mode(1.0, 10, 4), 3);
+        let demos = generate_demos(&spec(3, 0.05)).expect("generate");
+        // 3 + 3 + 1 + 1 episodes of 100 steps = 800 steps; 0.05 * 800 / 4 = 10.
+        assert_eq!(demos.unlabeled.len(), 800);
+        assert_eq!(demos.meta.labeled_steps_per_mode, vec![10; 4]);
+        assert_eq!(demos.labeled.len(), 40);
+        // Cut from one episode per mode.
+        assert_eq!(demos.labeled.n_episodes(), 4);
+        let demos = generate_demos(&spec(3, 1.0)).expect("generate");
+        // 200 steps per mode = two whole episodes per mode.
+        assert_eq!(demos.meta.labeled_steps_per_mode, vec![200; 4]);
+        assert_eq!(demos.labeled.episodes_per_mode(4), vec![2; 4]);
+    }
+
+    #[test]
+    fn unlabeled_episodes_are_shuffled_and_contiguous() {
+        let demos = generate_demos(&spec(10, 0.01)).expect("generate");
+        let u = &demos.unlabeled;
+        let first_modes: Vec<u32> = (0..u.n_episodes())
+            .map(|e| u.mode[u.episode.iter().position(|&x| x as usize == e).expect("ep")])
+            .collect();
+        let mut sorted = first_modes.clone();
+        sorted.sort_unstable();
+        assert_ne!(first_modes, sorted, "episodes should be mixed");
+        assert!(
+            u.episode
+                .windows(2)
+                .all(|w| w[1] == w[0] || w[1] == w[0] + 1)
+        );
+        // next_obs of a step is obs of the following step within an episode.
+        for i in 0..u.len() - 1 {
+            if u.episode[i] == u.episode[i + 1] {
+                assert_eq!(
+                    u.next_obs[i * 10..(i + 1) * 10],
+                    u.obs[(i + 1) * 10..(i + 2) * 10]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn generation_is_deterministic_given_the_seed() {
+        let a = small_demos();
+        let b = small_demos();
+        assert_eq!(a, b);
+        let c = generate_demos(&DemoSpec {
+            seed: 43,
+            ..spec(4, 0.1)
+        })
+        .expect("generate");
+        assert_ne!(a.unlabeled, c.unlabeled);
+    }
+
+    #[test]
+    fn expert_episode_rewards_are_those_of_its_own_mode() {
+        let mut env = make_env("traj2d", 4).expect("env");
+        for mode in 0..4 {
+            let ep = expert_episode(env.as_mut(), mode, 9).expect("episode");
+            assert_eq!(ep.len(), 100);
+            let mean: f32 = ep.reward.iter().sum::<f32>() / ep.len() as f32;
+            assert!(mean > -0.1 && mean <= 0.0, "mode {mode}: {mean}");
+        }
+        let err = expert_episode(env.as_mut(), 4, 9).unwrap_err();
+        assert!(matches!(err, EnvError::ModeOutOfRange { mode: 4, .. }));
+    }
+
+    #[test]
+    fn invalid_specs_are_rejected_naming_the_field() {
+        let cases = [
+            (
+                DemoSpec {
+                    label_ratio: 0.0,
+                    ..spec(2, 0.1)
+                },
+                "label_ratio",
+            ),
+            (
+                DemoSpec {
+                    label_ratio: 1.5,
+                    ..spec(2, 0.1)
+                },
+                "label_ratio",
+            ),
+            (
+                DemoSpec {
+                    imbalance_ratio: 0.5,
+                    ..spec(2, 0.1)
+                },
+                "imbalance_ratio",
+            ),
+            (
+                DemoSpec {
+                    imbalance_ratio: f64::INFINITY,
+                    ..spec(2, 0.1)
+                },
+                "imbalance_ratio",
+            ),
+            (
+                DemoSpec {
+                    n_modes: 1,
+                    ..spec(2, 0.1)
+                },
+                "n_modes",
+            ),
+            (
+                DemoSpec {
+                    majority_episodes: 0,
+                    ..spec(2, 0.1)
+                },
+                "majority_episodes",
+            ),
+        ];
+        for (s, field) in cases {
+            let err = generate_demos(&s).expect_err(field);
+            assert!(
+                matches!(err, DemoError::BadSpec { field: f, .. } if f == field),
+                "{field}: {err}"
+            );
+            assert!(err.to_string().contains(field), "{err}");
+        }
+        let err = generate_demos(&DemoSpec {
+            env: "nope".into(),
+            ..spec(2, 0.1)
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("nope"), "{err}");
+    }
+
+    #[test]
+    fn saved_demos_load_back_equal() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("demos.safetensors");
+        let demos = small_demos();
+        demos.save(&path).expect("save");
+        let back = Demos::load(&path).expect("load");
+        assert_eq!(back, demos);
+        // No temporary file is left behind.
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .expect("read_dir")
+            .map(|e| e.expect("entry").file_name())
+            .collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+    }
+
+    #[test]
+    fn saving_over_an_existing_file_replaces_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("d.safetensors");
+        std::fs::write(&path, b"old").expect("write");
+        let demos = small_demos();
+        demos.save(&path).expect("save");
+        assert_eq!(Demos::load(&path).expect("load"), demos);
+    }
+
+    #[test]
+    fn saving_into_a_missing_directory_is_an_io_error_naming_the_path() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("missing").join("d.safetensors");
+        let err = small_demos().save(&path).unwrap_err();
+        assert!(matches!(err, DemoError::Io { .. }), "{err}");
+        assert!(err.to_string().contains("missing"), "{err}");
+    }
+
+    // ---- corrupt files -------------------------------------------------------------
+
+    /// A writable description of a demos file, to corrupt one piece at a time.
+    struct RawFile {
+        tensors: Vec<RawTensor>,
+        header: HashMap<String, String>,
+    }
+
+    impl RawFile {
+        fn of(demos: &Demos) -> Self {
+            let mut tensors = split_tensors("unlabeled", &demos.unlabeled, &demos.meta);
+            tensors.extend(split_tensors("labeled", &demos.labeled, &demos.meta));
+            let meta = serde_json::to_string(&demos.meta).expect("json");
+            Self {
+                tensors,
+                header: header(meta),
+            }
+        }
+
+        fn tensor(&mut self, name: &str) -> &mut RawTensor {
+            self.tensors
+                .iter_mut()
+                .find(|t| t.0 == name)
+                .expect("tensor exists")
+        }
+
+        fn bytes(&self) -> Vec<u8> {
+            let views: Vec<(String, TensorView<'_>)> = self
+                .tensors
+                .iter()
+                .map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).expect("view")))
+                .collect();
+            safetensors::serialize(views, Some(self.header.clone())).expect("serialize")
+        }
+
+        fn load_err(&self) -> String {
+            load_bytes_err(&self.bytes())
+        }
+    }
+
+    const PATH: &str = "/data/corrupt.safetensors";
+
+    fn load_bytes_err(bytes: &[u8]) -> String {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("corrupt.safetensors");
+        std::fs::write(&path, bytes).expect("write");
+        let err = Demos::load(&path).expect_err("corrupt file must not load");
+        let msg = err.to_string();
+        assert!(
+            msg.contains(&path.display().to_string()),
+            "no path in: {msg}"
+        );
+        // The in-memory parser names the path it is given too.
+        let msg2 = Demos::from_bytes(bytes, Path::new(PATH))
+            .expect_err("corrupt")
+            .to_string();
+        assert!(msg2.contains(PATH), "{msg2}");
+        msg
+    }
+
+    fn assert_names(msg: &str, parts: &[&str]) {
+        for p in parts {
+            assert!(msg.contains(p), "{p:?} not in: {msg}");
+        }
+    }
+
+    #[test]
+    fn the_unmodified_raw_file_loads() {
+        let demos = small_demos();
+        let bytes = RawFile::of(&demos).bytes();
+        assert_eq!(
+            Demos::from_bytes(&bytes, Path::new(PATH)).expect("load"),
+            demos
+        );
+    }
+
+    #[test]
+    fn a_truncated_file_is_rejected_as_not_safetensors() {
+        let bytes = RawFile::of(&small_demos()).bytes();
+        for cut in [3, 20, bytes.len() / 2, bytes.len() - 1] {
+            let msg = load_bytes_err(&bytes[..cut]);
+            assert_names(&msg, &["not a valid safetensors file"]);
+        }
+    }
+
+    #[test]
+    fn garbage_bytes_are_rejected_as_not_safetensors() {
+        let msg = load_bytes_err(b"this is certainly not a safetensors file at all");
+        assert_names(&msg, &["not a valid safetensors file"]);
+        let msg = load_bytes_err(b"");
+        assert_names(&msg, &["not a valid safetensors file"]);
+    }
+
+    #[test]
+    fn a_missing_or_wrong_format_string_is_rejected() {
+        let mut raw = RawFile::of(&small_demos());
+        raw.header.insert("format".into(), "not-demos".into());
+        assert_names(&raw.load_err(), &["format", "not-demos", FORMAT]);
+        raw.header.remove("format");
+        assert_names(&raw.load_err(), &["\"format\"", "missing"]);
+    }
+
+    #[test]
+    fn an_unsupported_format_version_is_rejected() {
+        let mut raw = RawFile::of(&small_demos());
+        raw.header.insert("format_version".into(), "7".into());
+        assert_names(&raw.load_err(), &["format_version", "\"7\""]);
+    }
+
+    #[test]
+    fn bad_meta_json_is_rejected_naming_the_json_error() {
+        let mut raw = RawFile::of(&small_demos());
+        raw.header.insert("meta".into(), "{\"env\": 3".into());
+        assert_names(&raw.load_err(), &["meta", "JSON", "line 1"]);
+        let mut raw = RawFile::of(&small_demos());
+        raw.header.insert("meta".into(), "{}".into());
+        assert_names(&raw.load_err(), &["missing field"]);
+    }
+
+    #[test]
+    fn a_missing_tensor_is_rejected_naming_it() {
+        let mut raw = RawFile::of(&small_demos());
+        raw.tensors.retain(|t| t.0 != "labeled.reward");
+        assert_names(&raw.load_err(), &["labeled.reward", "missing"]);
+    }
+
+    #[test]
+    fn a_wrong_dtype_is_rejected_naming_tensor_expected_and_found() {
+        let mut raw = RawFile::of(&small_demos());
+        let t = raw.tensor("unlabeled.mode");
+        t.1 = Dtype::F32;
+        assert_names(&raw.load_err(), &["unlabeled.mode", "I32", "F32"]);
+    }
+
+    #[test]
+    fn a_wrong_shape_is_rejected_naming_tensor_expected_and_found() {
+        let mut raw = RawFile::of(&small_demos());
+        let t = raw.tensor("unlabeled.obs");
+        let n = t.2[0];
+        t.2 = vec![n * 2, 5];
+        assert_names(
+            &raw.load_err(),
+            &["unlabeled.obs", "[n, 10]", &format!("[{}, 5]", n * 2)],
+        );
+    }
+
+    #[test]
+    fn row_counts_that_disagree_within_a_split_are_rejected() {
+        let mut raw = RawFile::of(&small_demos());
+        let t = raw.tensor("labeled.act");
+        let n = t.2[0];
+        t.2 = vec![n - 1, 1];
+        t.3.truncate((n - 1) * 4);
+        assert_names(
+            &raw.load_err(),
+            &["labeled.act", &format!("{} rows", n - 1), &n.to_string()],
+        );
+    }
+
+    #[test]
+    fn a_label_out_of_range_is_rejected_naming_tensor_row_and_value() {
+        for (value, shown) in [(4i32, "mode 4"), (-1, "mode -1")] {
+            let mut raw = RawFile::of(&small_demos());
+            let t = raw.tensor("labeled.mode");
+            t.3[12..16].copy_from_slice(&value.to_le_bytes());
+            assert_names(&raw.load_err(), &["labeled.mode", "row 3", shown, "0..4"]);
+        }
+    }
+
+    #[test]
+    fn a_negative_episode_index_is_rejected() {
+        let mut raw = RawFile::of(&small_demos());
+        let t = raw.tensor("unlabeled.episode");
+        t.3[0..4].copy_from_slice(&(-2i32).to_le_bytes());
+        assert_names(&raw.load_err(), &["unlabeled.episode", "row 0", "-2"]);
+    }
+
+    #[test]
+    fn a_nan_value_is_rejected_naming_tensor_and_row() {
+        let mut raw = RawFile::of(&small_demos());
+        let t = raw.tensor("unlabeled.next_obs");
+        // Row 7, column 3 of [n, 10].
+        let at = (7 * 10 + 3) * 4;
+        t.3[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_names(&raw.load_err(), &["unlabeled.next_obs", "row 7", "NaN"]);
+        let mut raw = RawFile::of(&small_demos());
+        let t = raw.tensor("labeled.reward");
+        t.3[8..12].copy_from_slice(&f32::INFINITY.to_le_bytes());
+        assert_names(&raw.load_err(), &["labeled.reward", "row 2", "inf"]);
+    }
+
+    #[test]
+    fn meta_counts_that_disagree_with_the_arrays_are_rejected() {
+        let mut demos = small_demos();
+        demos.meta.unlabeled_steps_per_mode[0] += 1;
+        let msg = RawFile::of(&demos).load_err();
+        assert_names(&msg, &["unlabeled_steps_per_mode"]);
+        let mut demos = small_demos();
+        demos.meta.unlabeled_episodes_per_mode[3] = 9;
+        assert_names(
+            &RawFile::of(&demos).load_err(),
+            &["unlabeled_episodes_per_mode", "9"],
+        );
+        let mut demos = small_demos();
+        demos.meta.labeled_steps_per_mode.pop();
+        assert_names(
+            &RawFile::of(&demos).load_err(),
+            &["labeled_steps_per_mode", "3 entries", "n_modes = 4"],
+        );
+    }
+
+    // ---- property: round trip of small random datasets ------------------------------
+
+    fn arb_split(
+        n_modes: usize,
+        obs_dim: usize,
+        act_dim: usize,
+    ) -> impl Strategy<Value = DemoSplit> {
+        (0usize..12).prop_flat_map(move |n| {
+            let f = -1e6f32..1e6f32;
+            (
+                proptest::collection::vec(f.clone(), n * obs_dim),
+                proptest::collection::vec(f.clone(), n * act_dim),
+                proptest::collection::vec(f.clone(), n * obs_dim),
+                proptest::collection::vec(0..n_modes as u32, n),
+                proptest::collection::vec(0u32..5, n),
+                proptest::collection::vec(f, n),
+            )
+                .prop_map(|(obs, act, next_obs, mode, episode, reward)| DemoSplit {
+                    obs,
+                    act,
+                    next_obs,
+                    mode,
+                    episode,
+                    reward,
+                })
+        })
+    }
+
+    fn arb_demos() -> impl Strategy<Value = Demos> {
+        (
+            2usize..5,
+            1usize..4,
+            1usize..3,
+            any::<u64>(),
+            0.001f64..1.0,
+            1.0f64..1000.0,
+        )
+            .prop_flat_map(|(n_modes, obs_dim, act_dim, seed, label_ratio, imb)| {
+                (
+                    arb_split(n_modes, obs_dim, act_dim),
+                    arb_split(n_modes, obs_dim, act_dim),
+                )
+                    .prop_map(move |(unlabeled, labeled)| {
+                        let meta = DemoMeta {
+                            format_version: FORMAT_VERSION,
+                            env: "traj2d".into(),
+                            obs_dim,
+                            act_dim,
+                            n_modes,
+                            episode_len: 100,
+                            label_ratio,
+                            imbalance_ratio: imb,
+                            majority_episodes: 3,
+                            seed,
+                            unlabeled_episodes_per_mode: unlabeled.episodes_per_mode(n_modes),
+                            unlabeled_steps_per_mode: unlabeled.steps_per_mode(n_modes),
+                            labeled_steps_per_mode: labeled.steps_per_mode(n_modes),
+                            generator: "ess test".into(),
+                        };
+                        Demos {
+                            meta,
+                            unlabeled,
+                            labeled,
+                        }
+                    })
+            })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        #[test]
+        fn any_small_dataset_survives_a_save_load_round_trip(demos in arb_demos()) {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let path = dir.path().join("p.safetensors");
+            demos.save(&path).expect("save");
+            let back = Demos::load(&path).expect("load");
+            prop_assert_eq!(back, demos);
+        }
+
+        #[test]
+        fn extend_concatenates_and_keeps_episodes_distinct(
+            a in arb_split(3, 2, 1),
+            b in arb_split(3, 2, 1),
+        ) {
+            let mut c = a.clone();
+            c.extend(&b);
+            prop_assert_eq!(c.len(), a.len() + b.len());
+            prop_assert_eq!(c.obs.len(), c.len() * 2);
+            prop_assert_eq!(&c.mode[a.len()..], &b.mode[..]);
+            prop_assert_eq!(c.n_episodes(), if b.is_empty() { a.n_episodes() } else { a.n_episodes() + b.n_episodes() });
+        }
+    }
+}

@@ -1,0 +1,381 @@
+//! The environment contract shared by every Ess environment.
+//!
+//! An [`Env`] is a single episodic simulator with a fixed [`EnvSpec`]: observations of
+//! `obs_dim` floats, actions of `act_dim` floats in `[-1, 1]`, and `n_modes` behaviour
+//! modes, each with its own *evaluation* reward ([`Env::mode_rewards`]) that only the
+//! evaluation code reads — the imitation policy never sees it.
+//!
+//! Buffers are caller-owned (`&mut [f32]`) so actors can step thousands of envs without
+//! allocating. Every method checks buffer lengths and returns an [`EnvError`] naming
+//! the offending value instead of panicking.
+//!
+//! A [`ScriptedExpert`] env additionally provides a stochastic expert per behaviour
+//! mode; demonstration datasets ([`crate::demos`]) are rolled from it.
+
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::traj2d::{Traj2D, Traj2DConfig};
+
+/// Names accepted by [`make_env`].
+pub const KNOWN_ENVS: &[&str] = &["traj2d"];
+
+/// Static description of an environment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EnvSpec {
+    /// Environment name, as accepted by [`make_env`].
+    pub name: String,
+    /// Length of an observation vector.
+    pub obs_dim: usize,
+    /// Length of an action vector; every component lies in `[-1, 1]`.
+    pub act_dim: usize,
+    /// Number of behaviour modes (length of [`Env::mode_rewards`]'s output).
+    pub n_modes: usize,
+    /// Episode length limit; the step that reaches it reports `truncated`.
+    pub max_steps: usize,
+}
+
+/// How an episode stands after a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct StepOutcome {
+    /// The episode reached a terminal state (no bootstrapping past it).
+    pub terminated: bool,
+    /// The episode was cut by the time limit (bootstrapping past it is valid).
+    pub truncated: bool,
+}
+
+impl StepOutcome {
+    /// True when the episode is over, for either reason.
+    pub fn done(&self) -> bool {
+        self.terminated || self.truncated
+    }
+}
+
+/// Errors of environment construction and stepping.
+#[derive(Debug, thiserror::Error)]
+pub enum EnvError {
+    /// `step` (or the expert) was called before the first `reset`.
+    #[error("the environment was used before reset was called")]
+    NotReset,
+    /// `step` was called after the episode had terminated or been truncated.
+    #[error("step called after the episode ended (after {steps} steps); call reset first")]
+    StepAfterDone {
+        /// Steps taken in the finished episode.
+        steps: usize,
+    },
+    /// The action slice has the wrong length.
+    #[error("action has length {got}, expected act_dim = {expected}")]
+    BadActionLen {
+        /// `act_dim` of the env.
+        expected: usize,
+        /// Length received.
+        got: usize,
+    },
+    /// The observation buffer has the wrong length.
+    #[error("observation buffer has length {got}, expected obs_dim = {expected}")]
+    BadObsLen {
+        /// `obs_dim` of the env.
+        expected: usize,
+        /// Length received.
+        got: usize,
+    },
+    /// An action component is NaN or infinite.
+    #[error("action[{index}] = {value} is not finite")]
+    NonFiniteAction {
+        /// Index of the offending component.
+        index: usize,
+        /// Its value.
+        value: f32,
+    },
+    /// A behaviour mode index is out of range.
+    #[error("mode {mode} is out of range: the env has {n_modes} modes")]
+    ModeOutOfRange {
+        /// Mode requested.
+        mode: usize,
+        /// Number of modes of the env.
+        n_modes: usize,
+    },
+    /// [`make_env`] was given an unknown name.
+    #[error("unknown environment {name:?}; known environments: {known}")]
+    UnknownEnv {
+        /// Name requested.
+        name: String,
+        /// Comma-separated list of known names.
+        known: String,
+    },
+    /// A construction parameter is invalid.
+    #[error("invalid parameter {field} = {value}: {reason}")]
+    BadParam {
+        /// Name of the field.
+        field: &'static str,
+        /// Its value, formatted.
+        value: String,
+        /// Why it is rejected.
+        reason: String,
+    },
+}
+
+/// A single episodic environment.
+pub trait Env: Send {
+    /// Static description: dimensions, number of modes, episode length.
+    fn spec(&self) -> &EnvSpec;
+
+    /// Starts an episode; writes the first observation into `obs` (len `obs_dim`).
+    /// Deterministic given `seed`.
+    fn reset(&mut self, seed: u64, obs: &mut [f32]) -> Result<(), EnvError>;
+
+    /// Applies `action` (len `act_dim`; each component is clamped to `[-1, 1]`) and
+    /// writes the next observation into `obs`. Errors with [`EnvError::StepAfterDone`]
+    /// once the episode has terminated or been truncated.
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<StepOutcome, EnvError>;
+
+    /// Evaluation reward of the last transition for each behaviour mode, written into
+    /// `out` (len `n_modes`; a shorter `out` receives the first modes only). The
+    /// imitation policy never sees it. Before the first step of an episode it scores
+    /// the start state.
+    fn mode_rewards(&self, out: &mut [f32]);
+}
+
+/// An env whose behaviour modes have a scripted (stochastic) expert.
+pub trait ScriptedExpert: Env {
+    /// Expert action for `mode` in the current state, written into `action`
+    /// (len `act_dim`); stochastic through `rng`.
+    fn expert_action(
+        &self,
+        mode: usize,
+        rng: &mut ChaCha8Rng,
+        action: &mut [f32],
+    ) -> Result<(), EnvError>;
+}
+
+/// Builds an env by name (`"traj2d"` for now). `n_modes` is the requested number of
+/// behaviour modes: traj2d supports exactly 4, anything else is
+/// [`EnvError::BadParam`]. An unknown name is [`EnvError::UnknownEnv`], listing the
+/// known ones.
+pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, EnvError> {
+    match name {
+        "traj2d" => {
+            if n_modes != Traj2D::N_MODES {
+                return Err(EnvError::BadParam {
+                    field: "n_modes",
+                    value: n_modes.to_string(),
+                    reason: format!("traj2d has exactly {} modes", Traj2D::N_MODES),
+                });
+            }
+            Ok(Box::new(Traj2D::new(Traj2DConfig::default())?))
+        }
+        _ => Err(EnvError::UnknownEnv {
+            name: name.to_owned(),
+            known: KNOWN_ENVS.join(", "),
+        }),
+    }
+}
+
+/// Checks that `buf` has length `expected`, as an observation buffer.
+pub(crate) fn check_obs_len(buf: &[f32], expected: usize) -> Result<(), EnvError> {
+    if buf.len() == expected {
+        Ok(())
+    } else {
+        Err(EnvError::BadObsLen {
+            expected,
+            got: buf.len(),
+        })
+    }
+}
+
+/// Checks that `action` has length `expected` and only finite components.
+pub(crate) fn check_action(action: &[f32], expected: usize) -> Result<(), EnvError> {
+    if action.len() != expected {
+        return Err(EnvError::BadActionLen {
+            expected,
+            got: action.len(),
+        });
+    }
+    match action.iter().position(|a| !a.is_finite()) {
+        Some(index) => Err(EnvError::NonFiniteAction {
+            index,
+            value: action[index],
+        }),
+        None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! Conformance suite: every env built by [`make_env`] obeys the [`Env`] contract.
+
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// Every (name, n_modes) that `make_env` must support.
+    const ALL_ENVS: &[(&str, usize)] = &[("traj2d", 4)];
+
+    fn build(name: &str, n_modes: usize) -> Box<dyn ScriptedExpert> {
+        make_env(name, n_modes).expect("known env builds")
+    }
+
+    /// Rolls one episode with uniformly random actions; returns all observations.
+    fn rollout(env: &mut dyn ScriptedExpert, seed: u64) -> (Vec<f32>, Vec<StepOutcome>) {
+        let spec = env.spec().clone();
+        let mut obs = vec![0.0; spec.obs_dim];
+        let mut act = vec![0.0; spec.act_dim];
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xabcdef);
+        env.reset(seed, &mut obs).expect("reset");
+        let mut all = obs.clone();
+        let mut outcomes = Vec::new();
+        loop {
+            for a in &mut act {
+                *a = rng.random_range(-1.0..=1.0);
+            }
+            let out = env.step(&act, &mut obs).expect("step");
+            all.extend_from_slice(&obs);
+            outcomes.push(out);
+            if out.done() {
+                break;
+            }
+        }
+        (all, outcomes)
+    }
+
+    #[test]
+    fn same_seed_gives_the_same_trajectory() {
+        for &(name, k) in ALL_ENVS {
+            let (a, _) = rollout(build(name, k).as_mut(), 7);
+            let (b, _) = rollout(build(name, k).as_mut(), 7);
+            let (c, _) = rollout(build(name, k).as_mut(), 8);
+            assert_eq!(a, b, "{name}");
+            assert_ne!(a, c, "{name}: different seeds should differ");
+        }
+    }
+
+    #[test]
+    fn observations_are_finite_and_have_obs_dim() {
+        for &(name, k) in ALL_ENVS {
+            let mut env = build(name, k);
+            let spec = env.spec().clone();
+            let (all, outcomes) = rollout(env.as_mut(), 3);
+            assert_eq!(all.len(), (outcomes.len() + 1) * spec.obs_dim);
+            assert!(all.iter().all(|x| x.is_finite()), "{name}");
+            let mut r = vec![0.0; spec.n_modes];
+            env.mode_rewards(&mut r);
+            assert!(r.iter().all(|x| x.is_finite()), "{name}");
+        }
+    }
+
+    #[test]
+    fn episodes_are_truncated_at_max_steps_and_not_terminated() {
+        for &(name, k) in ALL_ENVS {
+            let mut env = build(name, k);
+            let max = env.spec().max_steps;
+            let (_, outcomes) = rollout(env.as_mut(), 11);
+            assert_eq!(outcomes.len(), max, "{name}");
+            assert!(outcomes.iter().all(|o| !o.terminated), "{name}");
+            assert!(outcomes[..max - 1].iter().all(|o| !o.truncated), "{name}");
+            assert!(outcomes[max - 1].truncated, "{name}");
+        }
+    }
+
+    #[test]
+    fn stepping_after_the_episode_ended_is_an_error() {
+        for &(name, k) in ALL_ENVS {
+            let mut env = build(name, k);
+            let spec = env.spec().clone();
+            rollout(env.as_mut(), 1);
+            let mut obs = vec![0.0; spec.obs_dim];
+            let err = env.step(&vec![0.0; spec.act_dim], &mut obs).unwrap_err();
+            assert!(
+                matches!(err, EnvError::StepAfterDone { .. }),
+                "{name}: {err}"
+            );
+            // A reset starts a fresh episode.
+            env.reset(2, &mut obs).expect("reset");
+            env.step(&vec![0.0; spec.act_dim], &mut obs)
+                .expect("step after reset");
+        }
+    }
+
+    #[test]
+    fn stepping_before_reset_is_an_error() {
+        for &(name, k) in ALL_ENVS {
+            let mut env = build(name, k);
+            let spec = env.spec().clone();
+            let mut obs = vec![0.0; spec.obs_dim];
+            let err = env.step(&vec![0.0; spec.act_dim], &mut obs).unwrap_err();
+            assert!(matches!(err, EnvError::NotReset), "{name}: {err}");
+        }
+    }
+
+    #[test]
+    fn wrong_buffer_lengths_and_non_finite_actions_are_errors() {
+        for &(name, k) in ALL_ENVS {
+            let mut env = build(name, k);
+            let spec = env.spec().clone();
+            let mut obs = vec![0.0; spec.obs_dim];
+            let err = env.reset(0, &mut vec![0.0; spec.obs_dim + 1]).unwrap_err();
+            assert!(matches!(err, EnvError::BadObsLen { .. }), "{name}: {err}");
+            env.reset(0, &mut obs).expect("reset");
+            let err = env
+                .step(&vec![0.0; spec.act_dim + 1], &mut obs)
+                .unwrap_err();
+            assert!(
+                matches!(err, EnvError::BadActionLen { expected, got } if expected == spec.act_dim && got == spec.act_dim + 1),
+                "{name}: {err}"
+            );
+            assert!(err.to_string().contains("act_dim"), "{err}");
+            let err = env
+                .step(&vec![f32::NAN; spec.act_dim], &mut obs)
+                .unwrap_err();
+            assert!(
+                matches!(err, EnvError::NonFiniteAction { index: 0, .. }),
+                "{name}: {err}"
+            );
+            let err = env
+                .step(&vec![0.0; spec.act_dim], &mut vec![0.0; spec.obs_dim + 2])
+                .unwrap_err();
+            assert!(matches!(err, EnvError::BadObsLen { .. }), "{name}: {err}");
+            // Failed steps do not consume the episode.
+            env.step(&vec![0.0; spec.act_dim], &mut obs)
+                .expect("valid step");
+        }
+    }
+
+    #[test]
+    fn expert_rejects_an_out_of_range_mode() {
+        for &(name, k) in ALL_ENVS {
+            let mut env = build(name, k);
+            let spec = env.spec().clone();
+            let mut obs = vec![0.0; spec.obs_dim];
+            env.reset(0, &mut obs).expect("reset");
+            let mut rng = ChaCha8Rng::seed_from_u64(0);
+            let mut act = vec![0.0; spec.act_dim];
+            let err = env.expert_action(k, &mut rng, &mut act).unwrap_err();
+            assert!(
+                matches!(err, EnvError::ModeOutOfRange { mode, n_modes } if mode == k && n_modes == k),
+                "{name}: {err}"
+            );
+        }
+    }
+
+    #[test]
+    fn make_env_lists_known_envs_for_an_unknown_name() {
+        let err = make_env("cartpole", 2).err().expect("unknown env");
+        let msg = err.to_string();
+        assert!(msg.contains("cartpole") && msg.contains("traj2d"), "{msg}");
+    }
+
+    #[test]
+    fn make_env_rejects_an_unsupported_mode_count() {
+        let err = make_env("traj2d", 6).err().expect("bad n_modes");
+        assert!(
+            matches!(
+                err,
+                EnvError::BadParam {
+                    field: "n_modes",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert!(err.to_string().contains("n_modes = 6"), "{err}");
+    }
+}

@@ -1,0 +1,21 @@
+//! `ess-envs`: environments, scripted experts, per-mode evaluation rewards and
+//! demonstration datasets for Ess.
+//!
+//! - [`env`](mod@env): the [`Env`] contract every environment obeys, the [`ScriptedExpert`]
+//!   extension for environments with scripted multi-modal experts, and [`make_env`].
+//! - [`traj2d`]: the 2D trajectory task of the paper (Sec. 4, Fig. 1): four circular
+//!   behaviour modes through the origin.
+//! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
+//!   "Multi-modal demonstrations preparation") and their safetensors file format.
+//!
+//! This crate never links libtorch, tokio or tonic.
+
+pub mod demos;
+pub mod env;
+pub mod traj2d;
+
+pub use demos::{
+    DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
+};
+pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env};
+pub use traj2d::{Traj2D, Traj2DConfig};

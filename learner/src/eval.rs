@@ -1,0 +1,183 @@
+//! Evaluation as the paper measures it (Sec. 4, "Baselines and evaluation metrics").
+//!
+//! 1. A [`Reference`] per env: the behaviour classifier on `(s', a)` trained on balanced
+//!    expert episodes, and each mode's expert and random-policy returns.
+//! 2. For each one-hot code `c_j`: deterministic episodes (eps drawn per episode);
+//!    every step classified; a confusion matrix (codes x classes).
+//! 3. NMI and ENT of that matrix; the normalised task reward
+//!    `(R - R_random) / (R_expert - R_random)`, mean over modes, where code `j` is scored
+//!    on the mode it is matched to by the optimal one-to-one assignment (so a permuted
+//!    but disentangled policy of an unsupervised method is not punished, while a
+//!    collapsed one is).
+
+use crate::classifier::BehaviourClassifier;
+use crate::metrics::{Confusion, best_assignment, ent, nmi, normalized_reward};
+use ess_actor::{EvalEpisode, LatentSpec, PolicyWeights, eval_episode};
+use ess_envs::{ScriptedExpert, expert_episode};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+/// What evaluation compares against.
+pub struct Reference {
+    /// The behaviour classifier.
+    pub classifier: BehaviourClassifier,
+    /// Its held-out accuracy on expert data.
+    pub classifier_accuracy: f64,
+    /// Mean expert return of each mode.
+    pub expert_return: Vec<f64>,
+    /// Mean return of each mode under a uniformly random policy.
+    pub random_return: Vec<f64>,
+}
+
+/// Classifier input rows `[s', a]` of consecutive steps.
+pub fn classifier_rows(next_obs: &[f32], act: &[f32], obs_dim: usize, act_dim: usize) -> Vec<f32> {
+    let mut rows = Vec::with_capacity(next_obs.len() + act.len());
+    for (s, a) in next_obs
+        .chunks_exact(obs_dim)
+        .zip(act.chunks_exact(act_dim))
+    {
+        rows.extend_from_slice(s);
+        rows.extend_from_slice(a);
+    }
+    rows
+}
+
+/// Builds the reference of `env` from `episodes` expert episodes per mode.
+pub fn build_reference(
+    env: &mut dyn ScriptedExpert,
+    episodes: usize,
+    seed: u64,
+) -> anyhow::Result<Reference> {
+    let spec = env.spec().clone();
+    let (k, od, ad) = (spec.n_modes, spec.obs_dim, spec.act_dim);
+    let mut rows = Vec::new();
+    let mut labels = Vec::new();
+    let mut expert_return = vec![0.0; k];
+    for (mode, mode_return) in expert_return.iter_mut().enumerate() {
+        for e in 0..episodes {
+            let ep = expert_episode(env, mode, seed ^ ((mode as u64) << 32) ^ (e as u64 + 1))?;
+            rows.extend(classifier_rows(&ep.next_obs, &ep.act, od, ad));
+            labels.extend(std::iter::repeat_n(mode as i64, ep.len()));
+            *mode_return += ep.reward.iter().map(|&r| r as f64).sum::<f64>();
+        }
+        *mode_return /= episodes as f64;
+    }
+    let (classifier, classifier_accuracy) =
+        BehaviourClassifier::train(&rows, &labels, od + ad, k, 1500, seed)?;
+    // Random policy: uniform actions in [-1, 1].
+    let mut random_return = vec![0.0; k];
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
+    let mut obs = vec![0.0; od];
+    let mut act = vec![0.0; ad];
+    let mut rew = vec![0.0; k];
+    let n_random = episodes.max(1) * k;
+    for _ in 0..n_random {
+        env.reset(rng.random(), &mut obs)?;
+        loop {
+            for a in act.iter_mut() {
+                *a = rng.random_range(-1.0..1.0);
+            }
+            let out = env.step(&act, &mut obs)?;
+            env.mode_rewards(&mut rew);
+            for (acc, r) in random_return.iter_mut().zip(&rew) {
+                *acc += *r as f64;
+            }
+            if out.terminated || out.truncated {
+                break;
+            }
+        }
+    }
+    for r in random_return.iter_mut() {
+        *r /= n_random as f64;
+    }
+    Ok(Reference {
+        classifier,
+        classifier_accuracy,
+        expert_return,
+        random_return,
+    })
+}
+
+/// The result of one evaluation.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvalResult {
+    /// Normalised mutual information between code and predicted mode.
+    pub nmi: f64,
+    /// Average entropy (rows and columns) of the confusion matrix.
+    pub ent: f64,
+    /// Mean over modes of the normalised task reward.
+    pub normalized_reward: f64,
+    /// Normalised task reward of each code on its matched mode.
+    pub normalized_reward_per_code: Vec<f64>,
+    /// Matched mode of each code (optimal one-to-one assignment).
+    pub assignment: Vec<Option<usize>>,
+    /// Fraction of steps classified as the mode with the code's own index (meaningful
+    /// for methods that use labels, where code k should be mode k).
+    pub label_accuracy: f64,
+    /// Confusion counts, `[codes][classes]`.
+    pub confusion: Vec<Vec<u64>>,
+    /// Episodes evaluated per code.
+    pub episodes_per_code: usize,
+}
+
+/// Evaluates `w` with `episodes` deterministic episodes per code; returns the result
+/// and the episodes (for plots).
+pub fn evaluate(
+    reference: &Reference,
+    env: &mut dyn ScriptedExpert,
+    w: &PolicyWeights,
+    latent: &LatentSpec,
+    episodes: usize,
+    seed: u64,
+) -> anyhow::Result<(EvalResult, Vec<EvalEpisode>)> {
+    let spec = env.spec().clone();
+    let (k, od, ad) = (spec.n_modes, spec.obs_dim, spec.act_dim);
+    let n_codes = latent.n_codes;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut confusion = Confusion::new(n_codes, k);
+    let mut returns = vec![vec![0.0f64; k]; n_codes];
+    let mut all = Vec::with_capacity(n_codes * episodes);
+    for (code, code_returns) in returns.iter_mut().enumerate() {
+        for _ in 0..episodes {
+            let eps = rng.random_range(-1.0..1.0);
+            let ep = eval_episode(env, w, latent, code, eps, rng.random())?;
+            let rows = classifier_rows(&ep.next_obs, &ep.act, od, ad);
+            for class in reference.classifier.predict(&rows) {
+                confusion.add(code, class.min(k - 1))?;
+            }
+            for (m, r) in code_returns.iter_mut().enumerate() {
+                *r += ep.mode_return(m) as f64 / episodes as f64;
+            }
+            all.push(ep);
+        }
+    }
+    let assignment = best_assignment(&confusion);
+    let per_code: Vec<f64> = assignment
+        .iter()
+        .enumerate()
+        .map(|(code, m)| match m {
+            Some(m) => normalized_reward(
+                returns[code][*m],
+                reference.random_return[*m],
+                reference.expert_return[*m],
+            ),
+            None => 0.0,
+        })
+        .collect();
+    let matched = (0..n_codes.min(k))
+        .map(|c| confusion.row(c)[c])
+        .sum::<u64>() as f64;
+    let total = confusion.total().max(1) as f64;
+    let result = EvalResult {
+        nmi: nmi(&confusion),
+        ent: ent(&confusion),
+        normalized_reward: per_code.iter().sum::<f64>() / per_code.len().max(1) as f64,
+        normalized_reward_per_code: per_code,
+        assignment,
+        label_accuracy: matched / total,
+        confusion: (0..n_codes).map(|c| confusion.row(c).to_vec()).collect(),
+        episodes_per_code: episodes,
+    };
+    Ok((result, all))
+}

@@ -1,0 +1,21 @@
+//! `ess-learner`: the learning side of Ess and the `ess` command.
+//!
+//! - [`nets`]: tch networks (policy, value, discriminator body with D / Q_c / Q_eps heads).
+//! - [`objective`]: every objective term, one file each, headed by its equation.
+//! - [`ppo`]: PPO with GAE, including the p(c) update through Gumbel-softmax.
+//! - [`train`]: Algorithm 1 for all seven methods (presets in `deploy/presets/`).
+//! - [`classifier`], [`eval`], [`metrics`]: the paper's evaluation (NMI, ENT, normalised
+//!   task reward).
+//! - [`presets`]: the method presets, embedded in the binary.
+//! - [`plot`], [`report`]: PNG figures.
+
+pub mod classifier;
+pub mod eval;
+pub mod metrics;
+pub mod nets;
+pub mod objective;
+pub mod plot;
+pub mod ppo;
+pub mod presets;
+pub mod report;
+pub mod train;

@@ -1,0 +1,278 @@
+//! The networks (tch): policy, value, discriminator body with its heads, and p(c).
+//!
+//! Shapes follow the paper's reference implementation (see DESIGN.md):
+//! - policy `pi(a | s, eps, c)`: tanh MLP (64-64) on `[norm(s), eps, c]` giving the mean of
+//!   a Gaussian with a state-independent `log_std`, squashed by tanh;
+//! - value `V(s, eps, c)`: tanh MLP (64-64), same input;
+//! - discriminator body `D_body(s, a)`: tanh MLP (100-100) shared by the heads `D` (1 logit,
+//!   "expert" = 1), `Q_c` (K logits) and `Q_eps` (1), Fig. 2;
+//! - p(c): softmax over K learnable logits, updated with the policy (Sec. 3.2).
+
+use ess_actor::{Mlp as RustMlp, PolicyWeights};
+use ess_proto::{MlpLayout, WeightsError};
+use tch::{Kind, Tensor, nn, nn::Module};
+
+/// A tanh MLP built from `nn::Linear` layers.
+#[derive(Debug)]
+pub struct Mlp {
+    layers: Vec<nn::Linear>,
+    sizes: Vec<usize>,
+    /// Apply tanh after the last layer too (a body rather than a head).
+    tanh_out: bool,
+}
+
+impl Mlp {
+    /// Layers `sizes[0] -> ... -> sizes[n]` under `p`; `out_scale` multiplies the last
+    /// layer's initial weights (small for policy heads).
+    pub fn new(p: nn::Path, sizes: &[usize], tanh_out: bool, out_scale: f64) -> Self {
+        let n = sizes.len() - 1;
+        let layers = (0..n)
+            .map(|l| {
+                let lin = nn::linear(
+                    &p / format!("l{l}"),
+                    sizes[l] as i64,
+                    sizes[l + 1] as i64,
+                    Default::default(),
+                );
+                if l + 1 == n && out_scale != 1.0 {
+                    tch::no_grad(|| {
+                        let mut ws = lin.ws.shallow_clone();
+                        let _ = ws.f_mul_scalar_(out_scale);
+                        if let Some(bs) = &lin.bs {
+                            let _ = bs.shallow_clone().f_zero_();
+                        }
+                    });
+                }
+                lin
+            })
+            .collect();
+        Self {
+            layers,
+            sizes: sizes.to_vec(),
+            tanh_out,
+        }
+    }
+
+    /// Layer sizes.
+    pub fn sizes(&self) -> &[usize] {
+        &self.sizes
+    }
+
+    /// Parameters flattened in the [`MlpLayout`] order (weight `[out][in]`, then bias).
+    pub fn export(&self) -> Vec<f32> {
+        let mut out = Vec::new();
+        tch::no_grad(|| {
+            for lin in &self.layers {
+                out.extend(tensor_to_vec(&lin.ws));
+                if let Some(b) = &lin.bs {
+                    out.extend(tensor_to_vec(b));
+                }
+            }
+        });
+        out
+    }
+}
+
+impl Module for Mlp {
+    fn forward(&self, x: &Tensor) -> Tensor {
+        let n = self.layers.len();
+        let mut h = x.shallow_clone();
+        for (l, lin) in self.layers.iter().enumerate() {
+            h = lin.forward(&h);
+            if l + 1 < n || self.tanh_out {
+                h = h.tanh();
+            }
+        }
+        h
+    }
+}
+
+/// Copies a float tensor's values out (any shape, row-major).
+pub fn tensor_to_vec(t: &Tensor) -> Vec<f32> {
+    let flat = t.detach().to_kind(Kind::Float).contiguous().view([-1]);
+    Vec::<f32>::try_from(&flat).unwrap_or_default()
+}
+
+/// A `[rows, cols]` float tensor from a row-major slice.
+pub fn tensor_2d(data: &[f32], cols: usize) -> Tensor {
+    let rows = data.len().checked_div(cols).unwrap_or(0);
+    Tensor::from_slice(data).view([rows as i64, cols as i64])
+}
+
+/// Policy: mean MLP plus state-independent log standard deviation.
+#[derive(Debug)]
+pub struct Policy {
+    /// Mean network.
+    pub mean: Mlp,
+    /// Log standard deviation, `[act_dim]`.
+    pub log_std: Tensor,
+}
+
+impl Policy {
+    /// New policy for `input` features and `act_dim` actions.
+    pub fn new(p: nn::Path, input: usize, hidden: &[usize], act_dim: usize, log_std0: f64) -> Self {
+        let mut sizes = vec![input];
+        sizes.extend_from_slice(hidden);
+        sizes.push(act_dim);
+        let mean = Mlp::new(&p / "mean", &sizes, false, 0.01);
+        let log_std = p.var("log_std", &[act_dim as i64], nn::Init::Const(log_std0));
+        Self { mean, log_std }
+    }
+
+    /// Gaussian log-density of pre-tanh samples `u` `[n, act]` given inputs `[n, in]`.
+    pub fn log_prob(&self, input: &Tensor, u: &Tensor) -> Tensor {
+        let mean = self.mean.forward(input);
+        let z = (u - mean) * (-&self.log_std).exp();
+        let ln_sqrt_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
+        (z.square() * -0.5 - &self.log_std - ln_sqrt_2pi).sum_dim_intlist(-1, false, Kind::Float)
+    }
+
+    /// Entropy of the Gaussian (before squashing), summed over action dims.
+    pub fn entropy(&self) -> Tensor {
+        let c = 0.5 * (2.0 * std::f64::consts::PI * std::f64::consts::E).ln();
+        (&self.log_std + c).sum(Kind::Float)
+    }
+}
+
+/// Discriminator body and its three heads.
+#[derive(Debug)]
+pub struct Discriminator {
+    /// Shared body on `[norm(s), a]`.
+    pub body: Mlp,
+    /// Expert-vs-policy logit head (1).
+    pub d: nn::Linear,
+    /// Latent skill posterior head Q_c (K logits).
+    pub qc: nn::Linear,
+    /// Latent shift regression head Q_eps (1).
+    pub qeps: nn::Linear,
+}
+
+/// Outputs of the discriminator on a batch.
+pub struct DiscOut {
+    /// Body features `[n, h]`.
+    pub features: Tensor,
+    /// D logits `[n]`.
+    pub d_logit: Tensor,
+    /// Q_c logits `[n, K]`.
+    pub qc_logits: Tensor,
+    /// Q_eps prediction `[n]`.
+    pub qeps: Tensor,
+}
+
+impl Discriminator {
+    /// New body `input -> hidden` with heads for `n_codes` codes.
+    pub fn new(p: nn::Path, input: usize, hidden: &[usize], n_codes: usize) -> Self {
+        let mut sizes = vec![input];
+        sizes.extend_from_slice(hidden);
+        let body = Mlp::new(&p / "body", &sizes, true, 1.0);
+        let h = *hidden.last().unwrap_or(&input) as i64;
+        Self {
+            body,
+            d: nn::linear(&p / "d", h, 1, Default::default()),
+            qc: nn::linear(&p / "qc", h, n_codes as i64, Default::default()),
+            qeps: nn::linear(&p / "qeps", h, 1, Default::default()),
+        }
+    }
+
+    /// All heads on inputs `[n, in]`.
+    pub fn forward(&self, x: &Tensor) -> DiscOut {
+        let features = self.body.forward(x);
+        DiscOut {
+            d_logit: self.d.forward(&features).squeeze_dim(-1),
+            qc_logits: self.qc.forward(&features),
+            qeps: self.qeps.forward(&features).squeeze_dim(-1),
+            features,
+        }
+    }
+
+    /// Encoder parameters psi of Q_c (body and Q_c head), for the RIM L2 term.
+    pub fn encoder_params(&self) -> Vec<Tensor> {
+        let mut v = Vec::new();
+        for lin in self.body.layers.iter().chain(std::iter::once(&self.qc)) {
+            v.push(lin.ws.shallow_clone());
+        }
+        v
+    }
+}
+
+/// Exports the acting policy as [`PolicyWeights`] for the actors.
+pub fn export_policy(
+    policy: &Policy,
+    prior_logits: &Tensor,
+    obs_mean: &[f32],
+    obs_std: &[f32],
+    version: u64,
+) -> Result<PolicyWeights, WeightsError> {
+    let s = policy.mean.sizes();
+    let layout = MlpLayout { sizes: s.to_vec() };
+    Ok(PolicyWeights {
+        version,
+        mean: RustMlp::new(layout, policy.mean.export())?,
+        log_std: tensor_to_vec(&policy.log_std),
+        prior_logits: tensor_to_vec(prior_logits),
+        obs_mean: obs_mean.to_vec(),
+        obs_std: obs_std.to_vec(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rust_forward_equals_tch_forward_within_1e_5() {
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let obs_dim = 10;
+        let k = 4;
+        let policy = Policy::new(vs.root() / "pi", obs_dim + 1 + k, &[64, 64], 2, -0.5);
+        // Make the output layer non-trivial so the comparison means something.
+        tch::no_grad(|| {
+            for lin in &policy.mean.layers {
+                let _ = lin.ws.shallow_clone().f_normal_(0.0, 0.5);
+            }
+        });
+        let logits = Tensor::zeros([k as i64], (Kind::Float, tch::Device::Cpu));
+        let w = export_policy(&policy, &logits, &[0.0; 10], &[1.0; 10], 1).unwrap();
+        let x = Tensor::randn(
+            [32, (obs_dim + 1 + k) as i64],
+            (Kind::Float, tch::Device::Cpu),
+        );
+        let want = tensor_to_vec(&policy.mean.forward(&x));
+        let xs = tensor_to_vec(&x);
+        let mut out = [0.0f32; 2];
+        let mut scratch = vec![0.0; w.mean.scratch_len()];
+        for (i, row) in xs.chunks(obs_dim + 1 + k).enumerate() {
+            w.mean.forward(row, &mut out, &mut scratch);
+            for j in 0..2 {
+                let d = (out[j] - want[i * 2 + j]).abs();
+                assert!(
+                    d < 1e-5,
+                    "row {i} dim {j}: {} vs {}",
+                    out[j],
+                    want[i * 2 + j]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn policy_log_prob_matches_the_gaussian_formula() {
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let policy = Policy::new(vs.root(), 3, &[8], 2, -0.5);
+        let x = Tensor::zeros([1, 3], (Kind::Float, tch::Device::Cpu));
+        let mean = tensor_to_vec(&policy.mean.forward(&x));
+        let u = Tensor::from_slice(&[0.3f32, -0.2]).view([1, 2]);
+        let lp = f64::try_from(policy.log_prob(&x, &u).sum(Kind::Float)).unwrap();
+        let std = (-0.5f64).exp();
+        let want: f64 = [0.3, -0.2]
+            .iter()
+            .zip(&mean)
+            .map(|(u, m)| {
+                let z = (u - *m as f64) / std;
+                -0.5 * z * z - std.ln() - 0.5 * (2.0 * std::f64::consts::PI).ln()
+            })
+            .sum();
+        assert!((lp - want).abs() < 1e-5, "{lp} vs {want}");
+    }
+}

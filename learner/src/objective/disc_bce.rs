@@ -1,0 +1,44 @@
+//! Discriminator binary cross-entropy, the GAIL game of Eq. 1.
+//!
+//! Convention: `D(s, a) = sigmoid(logit)` is the probability that `(s, a)` comes from the
+//! expert. D ascends Eq. 1, i.e. minimises
+//! `-E_E[log D] - E_pi[log(1 - D)]`; the policy then descends it through its reward
+//! `-log(1 - D)` (see [`super::reward`]).
+
+use tch::{Reduction, Tensor};
+
+/// `BCE(D(expert) = 1) + BCE(D(policy) = 0)`, each averaged over its batch.
+pub fn disc_bce(expert_logit: &Tensor, policy_logit: &Tensor) -> Tensor {
+    let ones = expert_logit.ones_like();
+    let zeros = policy_logit.zeros_like();
+    expert_logit.binary_cross_entropy_with_logits::<Tensor>(&ones, None, None, Reduction::Mean)
+        + policy_logit.binary_cross_entropy_with_logits::<Tensor>(
+            &zeros,
+            None,
+            None,
+            Reduction::Mean,
+        )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::objective::scalar;
+
+    #[test]
+    fn bce_of_zero_logits_is_two_ln_two() {
+        let z = Tensor::from_slice(&[0.0f32, 0.0]);
+        let v = scalar(&disc_bce(&z, &z));
+        assert!((v - 2.0 * 2f64.ln()).abs() < 1e-6, "{v}");
+    }
+
+    #[test]
+    fn bce_matches_hand_computed_values() {
+        // expert logit 2 -> -ln(sigmoid(2)); policy logit -1 -> -ln(1 - sigmoid(-1)).
+        let e = Tensor::from_slice(&[2.0f32]);
+        let p = Tensor::from_slice(&[-1.0f32]);
+        let want = (1.0 + (-2f64).exp()).ln() + (1.0 + (-1f64).exp()).ln();
+        let v = scalar(&disc_bce(&e, &p));
+        assert!((v - want).abs() < 1e-6, "{v} vs {want}");
+    }
+}

@@ -1,0 +1,78 @@
+//! The policy's reward, the terms of Eq. 9 that depend on the policy:
+//!
+//! `r(s, a) = w_d * (-log(1 - D(s, a)))            // Eq. 1 (D = P(expert))
+//!          + w_c * sum_k c_k log Q_c(k | s, a)    // Eq. 5 / Eq. 2, lambda_2
+//!          - w_eps * |Q_eps(s, a) - eps|          // Eq. 2 for eps (MAE), lambda_1`
+//!
+//! `-log(1 - D) = softplus(logit)`, computed stably. The causal entropy `H(pi)` of
+//! Eq. 1 enters through PPO's entropy bonus instead.
+
+use tch::{Kind, Tensor};
+
+/// Weights of the reward terms.
+#[derive(Debug, Clone, Copy)]
+pub struct RewardWeights {
+    /// Use the logit `log D - log(1 - D)` instead of `-log(1 - D)`.
+    pub disc_logit: bool,
+    /// Discriminator term.
+    pub disc: f64,
+    /// Latent skill term.
+    pub qc: f64,
+    /// Latent shift term.
+    pub qeps: f64,
+}
+
+/// Per-step rewards `[n]` (no gradient needed: call under `no_grad`).
+pub fn policy_reward(
+    w: RewardWeights,
+    d_logit: &Tensor,
+    qc_logits: &Tensor,
+    code: &Tensor,
+    qeps: &Tensor,
+    eps: &Tensor,
+) -> Tensor {
+    let mut r = disc_term(w, d_logit) * w.disc;
+    if w.qc != 0.0 {
+        let lq =
+            (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float);
+        r += lq * w.qc;
+    }
+    if w.qeps != 0.0 {
+        r -= (qeps - eps).abs() * w.qeps;
+    }
+    r
+}
+
+/// The discriminator term alone (unweighted).
+pub fn disc_term(w: RewardWeights, d_logit: &Tensor) -> Tensor {
+    if w.disc_logit {
+        d_logit.shallow_clone()
+    } else {
+        d_logit.softplus()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::objective::t;
+
+    #[test]
+    fn reward_sums_its_three_terms() {
+        let w = RewardWeights {
+            disc_logit: false,
+            disc: 1.0,
+            qc: 0.5,
+            qeps: 2.0,
+        };
+        let d = Tensor::from_slice(&[0.0f32]);
+        let qc = t(&[0.0, 0.0], 2);
+        let code = t(&[1.0, 0.0], 2);
+        let qe = Tensor::from_slice(&[0.25f32]);
+        let eps = Tensor::from_slice(&[-0.25f32]);
+        let r =
+            f64::try_from(policy_reward(w, &d, &qc, &code, &qe, &eps).sum(Kind::Float)).unwrap();
+        let want = 2f64.ln() + 0.5 * 0.5f64.ln() - 2.0 * 0.5;
+        assert!((r - want).abs() < 1e-6, "{r} vs {want}");
+    }
+}

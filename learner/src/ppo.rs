@@ -1,0 +1,340 @@
+//! PPO with GAE(lambda) (Sec. 3.3: "pi_theta is optimized using PPO, with advantages
+//! computed using GAE(lambda), and the value function is updated using TD(lambda)").
+//!
+//! The p(c) logits are updated in the same step: with the Gumbel prior, each
+//! transition's code is recomputed from its stored Gumbel noise,
+//! `c = softmax((log p(c) + g) / tau)` (Eq. 7), so the clipped surrogate's gradient
+//! reaches the logits through `c` (Sec. 3.2, "passing the gradient back to the latent
+//! skill distribution").
+
+use crate::nets::{Mlp, Policy, tensor_2d};
+use ess_proto::config::{LatentPrior, PpoConfig};
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use tch::{Kind, Tensor, nn, nn::Module, nn::OptimizerConfig};
+
+/// Generalised advantage estimation over one actor's consecutive steps.
+///
+/// `values[t] = V(s_t)`, `next_values[t] = V(s_{t+1})`. A `terminated` step has no
+/// bootstrap; a `cut` step (time limit, or the end of the chunk) bootstraps from
+/// `next_values[t]` and stops the recursion. Returns `(advantages, returns)`.
+pub fn gae(
+    rewards: &[f32],
+    values: &[f32],
+    next_values: &[f32],
+    terminated: &[bool],
+    cut: &[bool],
+    gamma: f32,
+    lambda: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    let n = rewards.len();
+    let mut adv = vec![0.0; n];
+    let mut next_adv = 0.0;
+    for t in (0..n).rev() {
+        let boot = if terminated[t] { 0.0 } else { next_values[t] };
+        let delta = rewards[t] + gamma * boot - values[t];
+        let carry = if terminated[t] || cut[t] {
+            0.0
+        } else {
+            next_adv
+        };
+        adv[t] = delta + gamma * lambda * carry;
+        next_adv = adv[t];
+    }
+    let ret = adv.iter().zip(values).map(|(a, v)| a + v).collect();
+    (adv, ret)
+}
+
+/// One iteration's on-policy batch, already normalised and flattened.
+pub struct PpoBatch {
+    /// `[n, obs_dim]` normalised observations.
+    pub obs: Tensor,
+    /// `[n, 1]` eps.
+    pub eps: Tensor,
+    /// `[n, K]` code fed when acting.
+    pub code: Tensor,
+    /// `[n, K]` Gumbel noise the code was drawn with.
+    pub gumbel: Tensor,
+    /// `[n, act_dim]` pre-tanh action samples.
+    pub pre_tanh: Tensor,
+    /// `[n]` log-density under the acting policy.
+    pub old_logp: Tensor,
+    /// `[n]` advantages (normalised here).
+    pub adv: Tensor,
+    /// `[n]` value targets.
+    pub returns: Tensor,
+}
+
+/// Statistics of one PPO update.
+#[derive(Debug, Clone, Default)]
+pub struct PpoStats {
+    /// Mean clipped surrogate loss.
+    pub policy_loss: f64,
+    /// Mean value loss.
+    pub value_loss: f64,
+    /// Policy entropy.
+    pub entropy: f64,
+    /// Mean approximate KL(old || new).
+    pub approx_kl: f64,
+    /// Fraction of clipped ratios.
+    pub clip_frac: f64,
+}
+
+/// The learner side of PPO: networks and their optimisers.
+pub struct PpoLearner {
+    /// Policy.
+    pub policy: Policy,
+    /// Value network.
+    pub value: Mlp,
+    /// Logits of p(c) `[K]`.
+    pub prior_logits: Tensor,
+    /// Optimiser of policy and value.
+    pub opt: nn::Optimizer,
+    /// Optimiser of the p(c) logits (stepped only with the Gumbel prior).
+    pub prior_opt: nn::Optimizer,
+    cfg: PpoConfig,
+    prior: LatentPrior,
+    tau: f64,
+}
+
+impl PpoLearner {
+    /// Builds networks in `vs` (policy + value) and `prior_vs` (logits).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        vs: &nn::VarStore,
+        prior_vs: &nn::VarStore,
+        input: usize,
+        act_dim: usize,
+        n_codes: usize,
+        cfg: &PpoConfig,
+        prior: LatentPrior,
+        tau: f64,
+    ) -> Result<Self, tch::TchError> {
+        let root = vs.root();
+        let policy = Policy::new(&root / "pi", input, &cfg.hidden, act_dim, cfg.log_std_init);
+        let mut vsizes = vec![input];
+        vsizes.extend_from_slice(&cfg.hidden);
+        vsizes.push(1);
+        let value = Mlp::new(&root / "v", &vsizes, false, 1.0);
+        let prior_logits = prior_vs.root().zeros("prior_logits", &[n_codes as i64]);
+        let opt = nn::Adam::default().build(vs, cfg.lr)?;
+        let prior_opt = nn::Adam::default().build(prior_vs, cfg.prior_lr.max(1e-12))?;
+        Ok(Self {
+            policy,
+            value,
+            prior_logits,
+            opt,
+            prior_opt,
+            cfg: cfg.clone(),
+            prior,
+            tau,
+        })
+    }
+
+    /// The code fed to the networks for a batch: recomputed from Gumbel noise (with
+    /// gradient to the prior logits) or the stored one.
+    pub fn code_for(&self, code: &Tensor, gumbel: &Tensor) -> Tensor {
+        match self.prior {
+            LatentPrior::Gumbel => {
+                let logp = self.prior_logits.log_softmax(-1, Kind::Float);
+                ((gumbel + logp) / self.tau).softmax(-1, Kind::Float)
+            }
+            _ => code.shallow_clone(),
+        }
+    }
+
+    /// `V(s, eps, c)` for a batch of inputs `[n, in]`.
+    pub fn values(&self, input: &Tensor) -> Tensor {
+        self.value.forward(input).squeeze_dim(-1)
+    }
+
+    /// Runs `epochs` epochs of minibatch updates.
+    pub fn update(&mut self, b: &PpoBatch, rng: &mut ChaCha8Rng) -> PpoStats {
+        let n = b.old_logp.size()[0] as usize;
+        let adv = {
+            let m = b.adv.mean(Kind::Float);
+            let s = b.adv.std(true).clamp_min(1e-8);
+            (&b.adv - m) / s
+        };
+        let mut idx: Vec<i64> = (0..n as i64).collect();
+        let mb = self.cfg.minibatch.min(n).max(1);
+        let mut stats = PpoStats::default();
+        let mut count = 0.0;
+        let train_prior = self.prior == LatentPrior::Gumbel && self.cfg.prior_lr > 0.0;
+        for _ in 0..self.cfg.epochs {
+            idx.shuffle(rng);
+            for chunk in idx.chunks(mb) {
+                let i = Tensor::from_slice(chunk);
+                let obs = b.obs.index_select(0, &i);
+                let eps = b.eps.index_select(0, &i);
+                let code =
+                    self.code_for(&b.code.index_select(0, &i), &b.gumbel.index_select(0, &i));
+                let input = Tensor::cat(&[&obs, &eps, &code], 1);
+                let vin = Tensor::cat(&[&obs, &eps, &code.detach()], 1);
+                let logp = self
+                    .policy
+                    .log_prob(&input, &b.pre_tanh.index_select(0, &i));
+                let old = b.old_logp.index_select(0, &i);
+                let a = adv.index_select(0, &i);
+                let log_ratio = &logp - &old;
+                let ratio = log_ratio.exp();
+                let clip = self.cfg.clip;
+                let s1 = &ratio * &a;
+                let s2 = ratio.clamp(1.0 - clip, 1.0 + clip) * &a;
+                let policy_loss = -s1.minimum(&s2).mean(Kind::Float);
+                let v = self.values(&vin);
+                let value_loss = (v - b.returns.index_select(0, &i))
+                    .square()
+                    .mean(Kind::Float);
+                let entropy = self.policy.entropy();
+                let loss = &policy_loss + &value_loss * self.cfg.value_coef
+                    - &entropy * self.cfg.entropy_coef;
+                self.opt.zero_grad();
+                if train_prior {
+                    self.prior_opt.zero_grad();
+                }
+                loss.backward();
+                self.opt.clip_grad_norm(self.cfg.max_grad_norm);
+                self.opt.step();
+                if train_prior {
+                    self.prior_opt.step();
+                }
+                tch::no_grad(|| {
+                    stats.policy_loss += f64::try_from(&policy_loss).unwrap_or(f64::NAN);
+                    stats.value_loss += f64::try_from(&value_loss).unwrap_or(f64::NAN);
+                    stats.entropy += f64::try_from(&entropy).unwrap_or(f64::NAN);
+                    let kl = ((log_ratio.exp() - 1.0) - &log_ratio).mean(Kind::Float);
+                    stats.approx_kl += f64::try_from(&kl).unwrap_or(f64::NAN);
+                    let cf = (ratio - 1.0)
+                        .abs()
+                        .gt(clip)
+                        .to_kind(Kind::Float)
+                        .mean(Kind::Float);
+                    stats.clip_frac += f64::try_from(&cf).unwrap_or(f64::NAN);
+                });
+                count += 1.0;
+            }
+        }
+        if count > 0.0 {
+            stats.policy_loss /= count;
+            stats.value_loss /= count;
+            stats.entropy /= count;
+            stats.approx_kl /= count;
+            stats.clip_frac /= count;
+        }
+        stats
+    }
+
+    /// One score-function step on the p(c) logits: the code of each step
+    /// (`argmax c`, distributed as p(c) by the Gumbel-max trick) is reinforced by that
+    /// step's `reward` minus the batch mean. Ascends `E_{k~p}[r]`.
+    pub fn prior_score_step(&mut self, code: &Tensor, reward: &Tensor, coef: f64) {
+        let k = code.argmax(-1, false);
+        let adv = tch::no_grad(|| {
+            let m = reward.mean(Kind::Float);
+            let s = reward.std(true).clamp_min(1e-8);
+            (reward - m) / s
+        });
+        let logp = self
+            .prior_logits
+            .log_softmax(-1, Kind::Float)
+            .index_select(0, &k);
+        let loss = -(logp * adv).mean(Kind::Float) * coef;
+        self.prior_opt.zero_grad();
+        loss.backward();
+        self.prior_opt.step();
+    }
+
+    /// p(c) as probabilities.
+    pub fn prior_probs(&self) -> Vec<f32> {
+        tch::no_grad(|| crate::nets::tensor_to_vec(&self.prior_logits.softmax(-1, Kind::Float)))
+    }
+}
+
+/// Builds `[n, 1]` from a slice.
+pub fn column(v: &[f32]) -> Tensor {
+    tensor_2d(v, 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gae_matches_a_hand_computed_case() {
+        // 3 steps, terminal at the end; gamma 0.9, lambda 0.5.
+        let r = [1.0, 0.0, 2.0];
+        let v = [0.5, 1.0, 1.5];
+        let nv = [1.0, 1.5, 9.0]; // last is ignored: terminated
+        let term = [false, false, true];
+        let cut = [false, false, false];
+        let (adv, ret) = gae(&r, &v, &nv, &term, &cut, 0.9, 0.5);
+        // deltas: d2 = 2 - 1.5 = 0.5; d1 = 0 + .9*1.5 - 1 = 0.35; d0 = 1 + .9*1 - .5 = 1.4
+        // A2 = .5; A1 = .35 + .45*.5 = .575; A0 = 1.4 + .45*.575 = 1.65875
+        let want = [1.65875, 0.575, 0.5];
+        for (a, w) in adv.iter().zip(want) {
+            assert!((a - w).abs() < 1e-6, "{adv:?}");
+        }
+        assert!((ret[0] - (1.65875 + 0.5)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn gae_bootstraps_and_stops_at_a_cut() {
+        let r = [0.0, 0.0];
+        let v = [0.0, 0.0];
+        let nv = [0.0, 2.0];
+        let (adv, _) = gae(&r, &v, &nv, &[false, false], &[true, true], 0.5, 1.0);
+        // Step 0 is cut: no carry from step 1 even though lambda = 1.
+        assert_eq!(adv, vec![0.0, 1.0]);
+    }
+
+    fn tiny_batch(n: usize, k: usize) -> PpoBatch {
+        let f = |v: Vec<f32>, c: usize| tensor_2d(&v, c);
+        let mut g = Vec::new();
+        let mut code = Vec::new();
+        for i in 0..n {
+            for j in 0..k {
+                g.push(((i * 7 + j * 3) % 5) as f32 * 0.3 - 0.6);
+                code.push(if j == i % k { 1.0 } else { 0.0 });
+            }
+        }
+        PpoBatch {
+            obs: f((0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(), 2),
+            eps: f((0..n).map(|i| (i as f32 * 0.11).cos()).collect(), 1),
+            code: f(code, k),
+            gumbel: f(g, k),
+            pre_tanh: f((0..n).map(|i| (i as f32 * 0.53).sin()).collect(), 1),
+            old_logp: Tensor::from_slice(&vec![-1.0f32; n]),
+            adv: Tensor::from_slice(&(0..n).map(|i| (i % k) as f32 - 1.0).collect::<Vec<_>>()),
+            returns: Tensor::from_slice(&vec![0.5f32; n]),
+        }
+    }
+
+    fn prior_after_update(prior: LatentPrior) -> Vec<f32> {
+        use rand::SeedableRng;
+        tch::manual_seed(0);
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let pvs = nn::VarStore::new(tch::Device::Cpu);
+        let cfg = PpoConfig {
+            epochs: 2,
+            minibatch: 16,
+            ..PpoConfig::default()
+        };
+        let mut l = PpoLearner::new(&vs, &pvs, 2 + 1 + 3, 1, 3, &cfg, prior, 0.5).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let stats = l.update(&tiny_batch(48, 3), &mut rng);
+        assert!(stats.policy_loss.is_finite() && stats.value_loss.is_finite());
+        crate::nets::tensor_to_vec(&l.prior_logits)
+    }
+
+    #[test]
+    fn gumbel_softmax_gradient_reaches_the_prior_logits_through_ppo() {
+        let logits = prior_after_update(LatentPrior::Gumbel);
+        assert!(logits.iter().any(|x| x.abs() > 1e-6), "{logits:?}");
+    }
+
+    #[test]
+    fn a_fixed_uniform_prior_is_never_updated() {
+        assert_eq!(prior_after_update(LatentPrior::Uniform), vec![0.0; 3]);
+    }
+}

@@ -1,0 +1,752 @@
+//! The training loop (Algorithm 1), one for all seven methods.
+//!
+//! Each iteration: the actors roll out `run.rollout_steps` transitions under the current
+//! policy and latents `(c, eps)`; the discriminator body with heads D, Q_c, Q_eps takes
+//! `disc.steps` steps on the weighted objective terms ([`crate::objective`]); the policy
+//! reward is computed with the updated heads; PPO updates policy, value and p(c).
+//! Periodic evaluations follow the paper's protocol ([`crate::eval`]).
+
+use crate::eval::{EvalResult, build_reference, evaluate};
+use crate::nets::{Discriminator, export_policy, tensor_2d, tensor_to_vec};
+use crate::objective::{
+    contrastive::nt_xent,
+    disc_bce::disc_bce,
+    grad_penalty::r1_penalty,
+    qc_ce::{hard_cross_entropy, soft_cross_entropy},
+    qeps::qeps_mae,
+    reward::{RewardWeights, disc_term, policy_reward},
+    rim::rim,
+};
+use crate::ppo::{PpoBatch, PpoLearner, PpoStats, column, gae};
+use anyhow::{Context, Result, bail};
+use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
+use ess_envs::{DemoSpec, Demos, generate_demos, make_env};
+use ess_proto::config::LatentPrior;
+use ess_proto::{CheckedConfig, Chunk};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+use tch::{Kind, Tensor, nn, nn::OptimizerConfig};
+
+/// What a caller sees of progress (the CLI draws a bar or prints lines).
+pub trait Progress {
+    /// Called after each iteration.
+    fn iteration(&mut self, it: &IterationLog);
+    /// Free-form status message (set-up phases).
+    fn message(&mut self, msg: &str);
+}
+
+/// One row of `metrics.csv`.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct IterationLog {
+    /// Iteration index (1-based).
+    pub iteration: usize,
+    /// Environment steps so far.
+    pub env_steps: usize,
+    /// Wall seconds since training start.
+    pub wall_s: f64,
+    /// Seconds of this iteration's rollout.
+    pub rollout_s: f64,
+    /// Seconds of this iteration's D/Q updates.
+    pub disc_s: f64,
+    /// Seconds of this iteration's reward, GAE and PPO.
+    pub ppo_s: f64,
+    /// `losses/disc_bce`.
+    pub disc_bce: f64,
+    /// D's accuracy on expert samples of the last batch.
+    pub d_acc_expert: f64,
+    /// D's accuracy on policy samples of the last batch.
+    pub d_acc_policy: f64,
+    /// `losses/qc_labeled`.
+    pub qc_labeled: f64,
+    /// `losses/qc_generated`.
+    pub qc_generated: f64,
+    /// `losses/qeps`.
+    pub qeps: f64,
+    /// `losses/rim_cond_entropy`.
+    pub rim_entropy: f64,
+    /// `losses/rim_marginal_kl`.
+    pub rim_kl: f64,
+    /// `losses/contrastive`.
+    pub contrastive: f64,
+    /// Mean policy reward.
+    pub reward_mean: f64,
+    /// PPO statistics.
+    pub policy_loss: f64,
+    /// Value loss.
+    pub value_loss: f64,
+    /// Policy entropy.
+    pub entropy: f64,
+    /// Approximate KL of the update.
+    pub approx_kl: f64,
+    /// p(c) as `p0;p1;...`.
+    pub prior: String,
+    /// NMI if evaluated at this iteration.
+    pub nmi: Option<f64>,
+    /// ENT if evaluated.
+    pub ent: Option<f64>,
+    /// Normalised task reward if evaluated.
+    pub normalized_reward: Option<f64>,
+}
+
+/// What `summary.json` holds.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    /// Method (preset) name.
+    pub method: String,
+    /// Environment.
+    pub env: String,
+    /// Training seed.
+    pub seed: u64,
+    /// Final NMI.
+    pub nmi: f64,
+    /// Final ENT.
+    pub ent: f64,
+    /// Final normalised task reward.
+    pub normalized_reward: f64,
+    /// Environment steps of training.
+    pub env_steps: usize,
+    /// Iterations run.
+    pub iterations: usize,
+    /// Wall seconds of training (set-up and final evaluation excluded).
+    pub wall_seconds: f64,
+    /// Wall seconds including set-up and evaluation.
+    pub total_seconds: f64,
+    /// End-to-end training env steps per second.
+    pub env_steps_per_second: f64,
+    /// Mean seconds per iteration of rollout, D/Q updates and PPO.
+    pub seconds_per_iteration: PhaseSeconds,
+    /// Learned p(c).
+    pub prior: Vec<f32>,
+    /// Behaviour classifier's held-out accuracy on expert data.
+    pub classifier_accuracy: f64,
+    /// Final evaluation in full.
+    pub eval: EvalResult,
+    /// Whether the run was stopped early (Ctrl-C).
+    pub interrupted: bool,
+}
+
+/// Per-phase seconds.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct PhaseSeconds {
+    /// Rollout.
+    pub rollout: f64,
+    /// D/Q updates.
+    pub disc: f64,
+    /// Reward, GAE and PPO.
+    pub ppo: f64,
+}
+
+/// Expert data as tensors.
+struct ExpertData {
+    /// `[n, obs+act]` normalised unlabeled inputs.
+    unlabeled: Tensor,
+    /// `[n]` true modes (only for the full-label baseline).
+    unlabeled_mode: Tensor,
+    /// `[m, obs+act]` labeled inputs.
+    labeled: Tensor,
+    /// `[m]` labels.
+    labels: Tensor,
+}
+
+fn disc_inputs(
+    obs: &[f32],
+    act: &[f32],
+    od: usize,
+    ad: usize,
+    mean: &[f32],
+    std: &[f32],
+) -> Tensor {
+    let n = obs.len() / od;
+    let mut v = Vec::with_capacity(n * (od + ad));
+    for (o, a) in obs.chunks_exact(od).zip(act.chunks_exact(ad)) {
+        v.extend(o.iter().zip(mean).zip(std).map(|((x, m), s)| (x - m) / s));
+        v.extend_from_slice(a);
+    }
+    tensor_2d(&v, od + ad)
+}
+
+fn norm_obs(obs: &[f32], mean: &[f32], std: &[f32]) -> Tensor {
+    let d = mean.len();
+    let v: Vec<f32> = obs
+        .chunks_exact(d)
+        .flat_map(|o| o.iter().zip(mean).zip(std).map(|((x, m), s)| (x - m) / s))
+        .collect();
+    tensor_2d(&v, d)
+}
+
+fn scalar(t: &Tensor) -> f64 {
+    f64::try_from(t).unwrap_or(f64::NAN)
+}
+
+/// Loads the configured dataset or generates it.
+pub fn load_or_generate_demos(cfg: &CheckedConfig) -> Result<Demos> {
+    if cfg.demos.path.is_empty() {
+        let spec = DemoSpec {
+            env: cfg.env.name.clone(),
+            n_modes: cfg.env.n_modes,
+            label_ratio: cfg.demos.label_ratio,
+            imbalance_ratio: cfg.demos.imbalance_ratio,
+            majority_episodes: cfg.demos.majority_episodes,
+            seed: cfg.demos.seed,
+        };
+        Ok(generate_demos(&spec)?)
+    } else {
+        let path = PathBuf::from(&cfg.demos.path);
+        let d = Demos::load(&path)?;
+        if d.meta.env != cfg.env.name || d.meta.n_modes != cfg.env.n_modes {
+            bail!(
+                "{}: dataset is for env `{}` with {} modes, config asks env.name = `{}`, env.n_modes = {}",
+                path.display(),
+                d.meta.env,
+                d.meta.n_modes,
+                cfg.env.name,
+                cfg.env.n_modes
+            );
+        }
+        Ok(d)
+    }
+}
+
+/// Everything `run` produced.
+pub struct RunOutput {
+    /// The summary (also written to `summary.json`).
+    pub summary: Summary,
+}
+
+/// Trains with `cfg`, writing into `out`; stops early (and still writes everything)
+/// when `shutdown` is set.
+pub fn run(
+    cfg: &CheckedConfig,
+    out: &Path,
+    progress: &mut dyn Progress,
+    shutdown: &AtomicBool,
+) -> Result<RunOutput> {
+    let t_total = Instant::now();
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("creating output dir {}", out.display()))?;
+    std::fs::write(out.join("config.toml"), cfg.to_toml())
+        .with_context(|| format!("writing {}", out.join("config.toml").display()))?;
+    let seed = cfg.run.seed;
+    let threads = if cfg.run.torch_threads > 0 {
+        cfg.run.torch_threads
+    } else {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    };
+    tch::set_num_threads(threads as i32);
+    tch::manual_seed(seed as i64);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 1);
+
+    progress.message("demonstrations");
+    let demos = load_or_generate_demos(cfg)?;
+    let mut eval_env = make_env(&cfg.env.name, cfg.env.n_modes)?;
+    let spec = eval_env.spec().clone();
+    if demos.meta.obs_dim != spec.obs_dim || demos.meta.act_dim != spec.act_dim {
+        bail!(
+            "dataset dims obs {} / act {} do not match env `{}` (obs {} / act {})",
+            demos.meta.obs_dim,
+            demos.meta.act_dim,
+            spec.name,
+            spec.obs_dim,
+            spec.act_dim
+        );
+    }
+    let (od, ad, k) = (spec.obs_dim, spec.act_dim, cfg.env.n_modes);
+    let (obs_mean, obs_std) = crate::classifier::feature_stats(&demos.unlabeled.obs, od);
+    let expert = ExpertData {
+        unlabeled: disc_inputs(
+            &demos.unlabeled.obs,
+            &demos.unlabeled.act,
+            od,
+            ad,
+            &obs_mean,
+            &obs_std,
+        ),
+        unlabeled_mode: Tensor::from_slice(
+            &demos
+                .unlabeled
+                .mode
+                .iter()
+                .map(|&m| m as i64)
+                .collect::<Vec<_>>(),
+        ),
+        labeled: disc_inputs(
+            &demos.labeled.obs,
+            &demos.labeled.act,
+            od,
+            ad,
+            &obs_mean,
+            &obs_std,
+        ),
+        labels: Tensor::from_slice(
+            &demos
+                .labeled
+                .mode
+                .iter()
+                .map(|&m| m as i64)
+                .collect::<Vec<_>>(),
+        ),
+    };
+    let n_exp = demos.unlabeled.len() as i64;
+    let n_lab = demos.labeled.len() as i64;
+
+    progress.message("behaviour classifier");
+    let reference = build_reference(eval_env.as_mut(), 20, cfg.demos.seed ^ 0xC1A5)?;
+
+    let m = &cfg.method;
+    let latent = LatentSpec {
+        prior: m.prior,
+        n_codes: k,
+        tau: m.gumbel_tau as f32,
+        use_eps: m.use_eps,
+    };
+    let input = od + 1 + k;
+    let vs = nn::VarStore::new(tch::Device::Cpu);
+    let prior_vs = nn::VarStore::new(tch::Device::Cpu);
+    let dvs = nn::VarStore::new(tch::Device::Cpu);
+    let mut ppo = PpoLearner::new(
+        &vs,
+        &prior_vs,
+        input,
+        ad,
+        k,
+        &cfg.ppo,
+        m.prior,
+        m.gumbel_tau,
+    )?;
+    let disc = Discriminator::new(dvs.root() / "disc", od + ad, &cfg.disc.hidden, k);
+    let mut dopt = nn::Adam::default().build(&dvs, cfg.disc.lr)?;
+
+    let workers: Vec<Worker> = (0..cfg.run.actors)
+        .map(|i| -> Result<Worker> {
+            let env = make_env(&cfg.env.name, cfg.env.n_modes)?;
+            Ok(Worker::new(
+                env,
+                seed.wrapping_mul(1_000_003).wrapping_add(i as u64),
+                k,
+            ))
+        })
+        .collect::<Result<_>>()?;
+    let mut actors = ThreadedActors::new(workers, latent);
+
+    let mut csv = std::io::BufWriter::new(
+        std::fs::File::create(out.join("metrics.csv"))
+            .with_context(|| format!("creating {}", out.join("metrics.csv").display()))?,
+    );
+    writeln!(csv, "{}", CSV_HEADER)?;
+    let ckpt_dir = out.join("checkpoints");
+    std::fs::create_dir_all(&ckpt_dir)?;
+
+    progress.message("training");
+    let t_train = Instant::now();
+    let mut env_steps = 0usize;
+    let mut phases = PhaseSeconds::default();
+    let mut iters_done = 0;
+    let mut interrupted = false;
+    let mut curve: Vec<crate::report::CurvePoint> = Vec::new();
+    for it in 1..=cfg.run.iterations {
+        if shutdown.load(Ordering::Relaxed) {
+            interrupted = true;
+            break;
+        }
+        let mut log = IterationLog {
+            iteration: it,
+            ..Default::default()
+        };
+        // --- rollout ---------------------------------------------------------------
+        let t0 = Instant::now();
+        let weights = Arc::new(export_policy(
+            &ppo.policy,
+            &ppo.prior_logits,
+            &obs_mean,
+            &obs_std,
+            it as u64,
+        )?);
+        let chunks = actors.collect(weights.clone(), cfg.run.rollout_steps)?;
+        let mut all = Chunk::with_capacity(od, ad, k, cfg.run.rollout_steps);
+        for c in &chunks {
+            if c.policy_version != weights.version {
+                bail!(
+                    "chunk of policy version {} in iteration {it}",
+                    c.policy_version
+                );
+            }
+            all.extend(c);
+        }
+        env_steps += all.len();
+        log.rollout_s = t0.elapsed().as_secs_f64();
+
+        // --- discriminator and encoders ----------------------------------------------
+        let t1 = Instant::now();
+        let gen_x = disc_inputs(&all.obs, &all.act, od, ad, &obs_mean, &obs_std);
+        let gen_code = tensor_2d(&all.code, k);
+        let gen_eps = Tensor::from_slice(&all.eps);
+        let n_gen = all.len() as i64;
+        let rim_w = if m.rim_warmup_iters == 0 {
+            m.w_rim
+        } else {
+            m.w_rim * ((it as f64) / m.rim_warmup_iters as f64).min(1.0)
+        };
+        // Eq. 9 minimises L_RIM over p(c) too: with a learnable prior, the KL term of
+        // Eq. 8 pulls p(c) toward Q_c's label marginal on the unlabeled expert data.
+        let prior_from_rim = m.prior == LatentPrior::Gumbel && m.rim_prior_grad;
+        let batch = cfg.disc.batch as i64;
+        for step in 0..cfg.disc.steps {
+            let gi = Tensor::from_slice(&sample_idx(&mut rng, n_gen, batch));
+            let ei = Tensor::from_slice(&sample_idx(&mut rng, n_exp, batch));
+            let xg = gen_x.index_select(0, &gi);
+            let xe = expert.unlabeled.index_select(0, &ei);
+            let xe = if m.w_grad_penalty > 0.0 {
+                xe.set_requires_grad(true)
+            } else {
+                xe
+            };
+            let og = disc.forward(&xg);
+            let oe = disc.forward(&xe);
+            let mut loss = Tensor::from(0.0f32);
+            let bce = disc_bce(&oe.d_logit, &og.d_logit);
+            loss += &bce * m.w_disc;
+            if m.w_grad_penalty > 0.0 {
+                loss += r1_penalty(&xe, &oe.d_logit) * m.w_grad_penalty;
+            }
+            let last = step + 1 == cfg.disc.steps;
+            if m.w_qeps > 0.0 {
+                let l = qeps_mae(&og.qeps, &gen_eps.index_select(0, &gi));
+                if last {
+                    log.qeps = scalar(&l);
+                }
+                loss += l * m.w_qeps;
+            }
+            if m.w_qc_generated > 0.0 {
+                let l = soft_cross_entropy(&og.qc_logits, &gen_code.index_select(0, &gi));
+                if last {
+                    log.qc_generated = scalar(&l);
+                }
+                loss += l * m.w_qc_generated;
+            }
+            if m.w_qc_full_labels > 0.0 {
+                let l =
+                    hard_cross_entropy(&oe.qc_logits, &expert.unlabeled_mode.index_select(0, &ei));
+                loss += l * m.w_qc_full_labels;
+            }
+            if m.w_qc_labeled > 0.0 && n_lab > 0 {
+                let li = Tensor::from_slice(&sample_idx(&mut rng, n_lab, batch.min(n_lab)));
+                let ol = disc.forward(&expert.labeled.index_select(0, &li));
+                let l = hard_cross_entropy(&ol.qc_logits, &expert.labels.index_select(0, &li));
+                if last {
+                    log.qc_labeled = scalar(&l);
+                }
+                loss += l * m.w_qc_labeled;
+            }
+            if rim_w > 0.0 {
+                let log_prior = ppo.prior_logits.log_softmax(-1, Kind::Float);
+                let log_prior = if prior_from_rim {
+                    log_prior
+                } else {
+                    log_prior.detach()
+                };
+                let r = rim(&oe.qc_logits, &log_prior, &disc.encoder_params());
+                if last {
+                    log.rim_entropy = scalar(&r.cond_entropy);
+                    log.rim_kl = scalar(&r.marginal_kl);
+                }
+                loss += r.weighted(m.rim_cond_entropy, m.rim_marginal_kl, m.rim_l2) * rim_w;
+            }
+            if m.w_contrastive > 0.0 {
+                let noisy = &xe.detach() + xe.randn_like() * m.contrastive_noise;
+                let z2 = disc.forward(&noisy).qc_logits;
+                let l = nt_xent(&oe.qc_logits, &z2, m.contrastive_temperature);
+                if last {
+                    log.contrastive = scalar(&l);
+                }
+                loss += l * m.w_contrastive;
+            }
+            dopt.zero_grad();
+            if prior_from_rim {
+                ppo.prior_opt.zero_grad();
+            }
+            loss.backward();
+            dopt.step();
+            if prior_from_rim && rim_w > 0.0 {
+                ppo.prior_opt.step();
+            }
+            if last {
+                tch::no_grad(|| {
+                    log.disc_bce = scalar(&bce);
+                    log.d_acc_expert =
+                        scalar(&oe.d_logit.gt(0.0).to_kind(Kind::Float).mean(Kind::Float));
+                    log.d_acc_policy =
+                        scalar(&og.d_logit.le(0.0).to_kind(Kind::Float).mean(Kind::Float));
+                });
+            }
+        }
+        log.disc_s = t1.elapsed().as_secs_f64();
+
+        // --- reward, GAE, PPO --------------------------------------------------------
+        let t2 = Instant::now();
+        let rw = RewardWeights {
+            disc_logit: m.disc_reward == ess_proto::config::DiscReward::Logit,
+            disc: m.reward_disc,
+            qc: m.reward_qc,
+            qeps: if m.use_eps { m.reward_qeps } else { 0.0 },
+        };
+        let obs_n = norm_obs(&all.obs, &obs_mean, &obs_std);
+        let next_n = norm_obs(&all.next_obs, &obs_mean, &obs_std);
+        let eps_col = column(&all.eps);
+        let (rewards, values, next_values, disc_r) = tch::no_grad(|| {
+            let o = disc.forward(&gen_x);
+            let r = policy_reward(rw, &o.d_logit, &o.qc_logits, &gen_code, &o.qeps, &gen_eps);
+            let dr = disc_term(rw, &o.d_logit);
+            let vin = Tensor::cat(&[&obs_n, &eps_col, &gen_code], 1);
+            let nin = Tensor::cat(&[&next_n, &eps_col, &gen_code], 1);
+            (
+                tensor_to_vec(&r),
+                tensor_to_vec(&ppo.values(&vin)),
+                tensor_to_vec(&ppo.values(&nin)),
+                dr,
+            )
+        });
+        if m.prior == ess_proto::config::LatentPrior::Gumbel && m.prior_score_coef > 0.0 {
+            ppo.prior_score_step(&gen_code, &disc_r, m.prior_score_coef);
+        }
+        let rewards: Vec<f32> = rewards
+            .iter()
+            .zip(&all.env_reward)
+            .map(|(r, e)| r + e)
+            .collect();
+        log.reward_mean =
+            rewards.iter().map(|&r| r as f64).sum::<f64>() / rewards.len().max(1) as f64;
+        let mut adv = Vec::with_capacity(all.len());
+        let mut ret = Vec::with_capacity(all.len());
+        let mut off = 0;
+        for c in &chunks {
+            let n = c.len();
+            let r = off..off + n;
+            let mut cut = c.truncated.clone();
+            if let Some(l) = cut.last_mut() {
+                *l = true;
+            }
+            let (a, rt) = gae(
+                &rewards[r.clone()],
+                &values[r.clone()],
+                &next_values[r.clone()],
+                &c.terminated,
+                &cut,
+                cfg.ppo.gamma as f32,
+                cfg.ppo.gae_lambda as f32,
+            );
+            adv.extend(a);
+            ret.extend(rt);
+            off += n;
+        }
+        let batch = PpoBatch {
+            obs: obs_n,
+            eps: eps_col,
+            code: gen_code,
+            gumbel: tensor_2d(&all.gumbel, k),
+            pre_tanh: tensor_2d(&all.pre_tanh, ad),
+            old_logp: Tensor::from_slice(&all.logp),
+            adv: Tensor::from_slice(&adv),
+            returns: Tensor::from_slice(&ret),
+        };
+        let st: PpoStats = ppo.update(&batch, &mut rng);
+        log.policy_loss = st.policy_loss;
+        log.value_loss = st.value_loss;
+        log.entropy = st.entropy;
+        log.approx_kl = st.approx_kl;
+        log.ppo_s = t2.elapsed().as_secs_f64();
+        log.prior = ppo
+            .prior_probs()
+            .iter()
+            .map(|p| format!("{p:.4}"))
+            .collect::<Vec<_>>()
+            .join(";");
+        phases.rollout += log.rollout_s;
+        phases.disc += log.disc_s;
+        phases.ppo += log.ppo_s;
+        log.env_steps = env_steps;
+        log.wall_s = t_train.elapsed().as_secs_f64();
+        iters_done = it;
+
+        if cfg.run.eval_every > 0
+            && it.is_multiple_of(cfg.run.eval_every)
+            && it != cfg.run.iterations
+        {
+            let w = export_policy(
+                &ppo.policy,
+                &ppo.prior_logits,
+                &obs_mean,
+                &obs_std,
+                it as u64,
+            )?;
+            let (r, _) = evaluate(
+                &reference,
+                eval_env.as_mut(),
+                &w,
+                &latent,
+                cfg.run.eval_episodes_periodic,
+                seed ^ 0xE7A1,
+            )?;
+            curve.push((env_steps, r.nmi, r.ent, r.normalized_reward));
+            log.nmi = Some(r.nmi);
+            log.ent = Some(r.ent);
+            log.normalized_reward = Some(r.normalized_reward);
+        }
+        if cfg.run.checkpoint_every > 0 && it.is_multiple_of(cfg.run.checkpoint_every) {
+            save_checkpoint(&ckpt_dir, &vs, &prior_vs, &dvs, it)?;
+        }
+        write_csv_row(&mut csv, &log)?;
+        progress.iteration(&log);
+    }
+    let wall = t_train.elapsed().as_secs_f64();
+    save_checkpoint(&ckpt_dir, &vs, &prior_vs, &dvs, iters_done)?;
+
+    progress.message("final evaluation");
+    let w: PolicyWeights = export_policy(
+        &ppo.policy,
+        &ppo.prior_logits,
+        &obs_mean,
+        &obs_std,
+        iters_done as u64,
+    )?;
+    let (result, episodes) = evaluate(
+        &reference,
+        eval_env.as_mut(),
+        &w,
+        &latent,
+        cfg.run.eval_episodes,
+        seed ^ 0xF1AA,
+    )?;
+    let mut last = IterationLog {
+        iteration: iters_done,
+        env_steps,
+        wall_s: wall,
+        nmi: Some(result.nmi),
+        ent: Some(result.ent),
+        normalized_reward: Some(result.normalized_reward),
+        prior: ppo
+            .prior_probs()
+            .iter()
+            .map(|p| format!("{p:.4}"))
+            .collect::<Vec<_>>()
+            .join(";"),
+        ..Default::default()
+    };
+    last.iteration = iters_done;
+    write_csv_row(&mut csv, &last)?;
+    csv.flush()?;
+
+    if spec.name == "traj2d" {
+        crate::report::plot_traj2d(
+            &out.join("trajectories.png"),
+            &demos,
+            &episodes,
+            &cfg.method.name,
+            k,
+        )?;
+    }
+    curve.push((env_steps, result.nmi, result.ent, result.normalized_reward));
+    crate::report::plot_curves(&out.join("curves.png"), &cfg.method.name, &curve)?;
+
+    let n = iters_done.max(1) as f64;
+    let summary = Summary {
+        method: cfg.method.name.clone(),
+        env: cfg.env.name.clone(),
+        seed,
+        nmi: result.nmi,
+        ent: result.ent,
+        normalized_reward: result.normalized_reward,
+        env_steps,
+        iterations: iters_done,
+        wall_seconds: wall,
+        total_seconds: t_total.elapsed().as_secs_f64(),
+        env_steps_per_second: env_steps as f64 / wall.max(1e-9),
+        seconds_per_iteration: PhaseSeconds {
+            rollout: phases.rollout / n,
+            disc: phases.disc / n,
+            ppo: phases.ppo / n,
+        },
+        prior: ppo.prior_probs(),
+        classifier_accuracy: reference.classifier_accuracy,
+        eval: result,
+        interrupted,
+    };
+    let json = serde_json::to_string_pretty(&summary)?;
+    write_atomic(&out.join("summary.json"), json.as_bytes())?;
+    Ok(RunOutput { summary })
+}
+
+const CSV_HEADER: &str = "iteration,env_steps,wall_s,rollout_s,disc_s,ppo_s,disc_bce,d_acc_expert,d_acc_policy,qc_labeled,qc_generated,qeps,rim_entropy,rim_kl,contrastive,reward_mean,policy_loss,value_loss,entropy,approx_kl,prior,nmi,ent,normalized_reward";
+
+fn opt(v: Option<f64>) -> String {
+    v.map(|x| format!("{x:.6}")).unwrap_or_default()
+}
+
+fn write_csv_row(w: &mut impl Write, l: &IterationLog) -> Result<()> {
+    writeln!(
+        w,
+        "{},{},{:.3},{:.4},{:.4},{:.4},{:.6},{:.4},{:.4},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{}",
+        l.iteration,
+        l.env_steps,
+        l.wall_s,
+        l.rollout_s,
+        l.disc_s,
+        l.ppo_s,
+        l.disc_bce,
+        l.d_acc_expert,
+        l.d_acc_policy,
+        l.qc_labeled,
+        l.qc_generated,
+        l.qeps,
+        l.rim_entropy,
+        l.rim_kl,
+        l.contrastive,
+        l.reward_mean,
+        l.policy_loss,
+        l.value_loss,
+        l.entropy,
+        l.approx_kl,
+        l.prior,
+        opt(l.nmi),
+        opt(l.ent),
+        opt(l.normalized_reward)
+    )?;
+    Ok(())
+}
+
+fn sample_idx(rng: &mut ChaCha8Rng, n: i64, batch: i64) -> Vec<i64> {
+    (0..batch).map(|_| rng.random_range(0..n.max(1))).collect()
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming into {}", path.display()))?;
+    Ok(())
+}
+
+fn save_checkpoint(
+    dir: &Path,
+    vs: &nn::VarStore,
+    prior_vs: &nn::VarStore,
+    dvs: &nn::VarStore,
+    it: usize,
+) -> Result<()> {
+    for (name, store) in [("policy", vs), ("prior", prior_vs), ("disc", dvs)] {
+        let p = dir.join(format!("{name}-{it:06}.safetensors"));
+        store
+            .save(&p)
+            .with_context(|| format!("saving checkpoint {}", p.display()))?;
+        let latest = dir.join(format!("{name}-latest.safetensors"));
+        std::fs::copy(&p, &latest).with_context(|| format!("writing {}", latest.display()))?;
+    }
+    Ok(())
+}

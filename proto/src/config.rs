@@ -1,0 +1,801 @@
+//! Training configuration: one objective made of weighted terms, selected by presets.
+//!
+//! Layering: [`TrainConfig::default`] (the paper's values) < a preset TOML
+//! (`deploy/presets/<name>.toml`) < a user file < `--set key=value` overrides. Every
+//! layer is a TOML table merged key by key into the defaults; a key that the defaults
+//! do not have is rejected with its dotted name, so a typo never passes silently. The
+//! merged table is deserialized (`deny_unknown_fields`) and then checked once by
+//! [`TrainConfig::check`] into a [`CheckedConfig`], whose values are in range.
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// A configuration error; each names the key (or file) and the value at fault.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    /// A key that the configuration does not have.
+    #[error("unknown config key `{key}` (in {source_name})")]
+    UnknownKey {
+        /// Dotted key.
+        key: String,
+        /// Which layer it came from (preset name, file path, `--set`).
+        source_name: String,
+    },
+    /// A value of the wrong TOML type.
+    #[error("config key `{key}` (in {source_name}) must be {expected}, got {got}")]
+    WrongType {
+        /// Dotted key.
+        key: String,
+        /// Which layer it came from.
+        source_name: String,
+        /// The expected type.
+        expected: String,
+        /// What was given.
+        got: String,
+    },
+    /// A value outside its allowed range.
+    #[error("config key `{key}` = {value} is out of range: {reason}")]
+    OutOfRange {
+        /// Dotted key.
+        key: String,
+        /// The offending value.
+        value: String,
+        /// What is allowed.
+        reason: String,
+    },
+    /// A `--set` argument not of the form `key=value`.
+    #[error("bad override `{arg}`: expected key=value")]
+    BadOverride {
+        /// The argument as given.
+        arg: String,
+    },
+    /// A TOML document that does not parse.
+    #[error("{source_name}: invalid TOML: {message}")]
+    Parse {
+        /// File or preset name.
+        source_name: String,
+        /// The parser's message.
+        message: String,
+    },
+    /// Deserialization failed after merging (should name the key in `message`).
+    #[error("invalid configuration: {message}")]
+    Invalid {
+        /// The deserializer's message.
+        message: String,
+    },
+}
+
+/// How the latent skill `c` is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LatentPrior {
+    /// No latent skill reaches the policy (GAIL): `c` is fed as zeros.
+    None,
+    /// Fixed uniform categorical, one-hot `c` (InfoGAIL, ACGAIL, Ess-InfoGAIL\GS).
+    Uniform,
+    /// Learnable p(c) sampled with Gumbel-softmax (Eq. 7), gradient to its logits
+    /// through the PPO surrogate (Elastic-InfoGAIL, Ess-InfoGAIL).
+    Gumbel,
+}
+
+/// Form of the discriminator's term in the policy reward.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DiscReward {
+    /// `-log(1 - D(s, a))` (GAIL's usual form; saturates at 0 where D is sure "policy").
+    NegLogOneMinusD,
+    /// `log D - log(1 - D)`, the logit (AIRL form): an estimate of
+    /// `log p_E(s, a) / p_pi(s, a)` that keeps a gradient where D is sure.
+    Logit,
+}
+
+/// The environment and its behaviour modes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvConfig {
+    /// Environment name: `traj2d`.
+    pub name: String,
+    /// Number of behaviour modes K (Traj2D: 4; Reacher: 2..12, paper 6).
+    pub n_modes: usize,
+}
+
+impl Default for EnvConfig {
+    fn default() -> Self {
+        Self {
+            name: "traj2d".into(),
+            n_modes: 4,
+        }
+    }
+}
+
+/// Demonstrations: imbalanced unlabeled part plus a small balanced labeled part.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DemosConfig {
+    /// A dataset file written by `ess demos generate`; empty: generate in memory.
+    pub path: String,
+    /// Labeled steps as a fraction of the unlabeled steps, in (0, 1] (paper, 2D: 1%).
+    pub label_ratio: f64,
+    /// Largest over smallest mode frequency in the unlabeled part, >= 1 (paper: 100).
+    pub imbalance_ratio: f64,
+    /// Unlabeled episodes of each majority mode.
+    pub majority_episodes: usize,
+    /// Seed of the dataset (independent of the training seed, as in the paper).
+    pub seed: u64,
+}
+
+impl Default for DemosConfig {
+    fn default() -> Self {
+        Self {
+            path: String::new(),
+            label_ratio: 0.01,
+            imbalance_ratio: 100.0,
+            majority_episodes: 200,
+            seed: 0,
+        }
+    }
+}
+
+/// The method: which latent prior and which weighted objective terms.
+///
+/// Every term's weight 0 switches it off. Equation numbers refer to the paper.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MethodConfig {
+    /// Display name of the method (set by the preset).
+    pub name: String,
+    /// Prior of the latent skill `c`.
+    pub prior: LatentPrior,
+    /// Gumbel-softmax temperature tau (Eq. 7; reference code: 0.1).
+    pub gumbel_tau: f64,
+    /// Feed the latent shifting variable eps ~ U(-1, 1) to the policy.
+    pub use_eps: bool,
+    /// Discriminator binary cross-entropy (Eq. 1).
+    pub w_disc: f64,
+    /// R1 gradient penalty on expert inputs of D (stabiliser, not in the paper).
+    pub w_grad_penalty: f64,
+    /// Q_eps regression with mean absolute error on generated data (Eq. 2 for eps).
+    pub w_qeps: f64,
+    /// Q_c cross-entropy on labeled expert data (Eq. 4).
+    pub w_qc_labeled: f64,
+    /// Q_c cross-entropy on generated data against the sampled `c` (Eq. 2 / 5, InfoGAIL).
+    pub w_qc_generated: f64,
+    /// Q_c cross-entropy on all expert data with its true mode (ACGAIL, full labels).
+    pub w_qc_full_labels: f64,
+    /// Contrastive (NT-Xent) loss on Q_c features, noise-augmented pairs (Elastic-InfoGAIL).
+    pub w_contrastive: f64,
+    /// Std of the Gaussian augmentation noise of the contrastive loss.
+    pub contrastive_noise: f64,
+    /// Temperature of the contrastive loss.
+    pub contrastive_temperature: f64,
+    /// RIM weight lambda_3 (Eq. 8) on unlabeled expert data.
+    pub w_rim: f64,
+    /// RIM: weight of the mean conditional entropy (cluster assumption).
+    pub rim_cond_entropy: f64,
+    /// RIM: weight of KL(empirical Q_c marginal || p(c)).
+    pub rim_marginal_kl: f64,
+    /// RIM: L2 regularisation of the encoder parameters R(psi).
+    pub rim_l2: f64,
+    /// Let RIM's KL term also move the p(c) logits (Eq. 9 minimises L_RIM over p(c)),
+    /// so p(c) follows Q_c's label marginal on the unlabeled expert data.
+    pub rim_prior_grad: bool,
+    /// RIM weight ramps linearly from 0 to `w_rim` over this many iterations.
+    pub rim_warmup_iters: usize,
+    /// Policy reward weight of log Q_c(c | s, a) (lambda_2 in Eq. 9 / Eq. 5 for pi).
+    pub reward_qc: f64,
+    /// Policy reward weight of -|Q_eps(s, a) - eps| (lambda_1 in Eq. 3).
+    pub reward_qeps: f64,
+    /// Policy reward weight of the discriminator term.
+    pub reward_disc: f64,
+    /// Form of the discriminator term.
+    pub disc_reward: DiscReward,
+    /// Weight of a score-function (REINFORCE) gradient for the p(c) logits: each
+    /// episode's code `k = argmax c` (Gumbel-max: `k ~ p(c)`) is reinforced by the
+    /// discriminator reward its steps got, so p(c) moves toward the code frequencies
+    /// that make the generated data look like the (imbalanced) expert data (the
+    /// min over p(c) of Eq. 9). 0: p(c) learns only through the PPO surrogate.
+    pub prior_score_coef: f64,
+}
+
+impl Default for MethodConfig {
+    fn default() -> Self {
+        Self {
+            name: "ess-infogail".into(),
+            prior: LatentPrior::Gumbel,
+            gumbel_tau: 0.1,
+            use_eps: true,
+            w_disc: 1.0,
+            w_grad_penalty: 0.0,
+            w_qeps: 1.0,
+            w_qc_labeled: 1.0,
+            w_qc_generated: 0.0,
+            w_qc_full_labels: 0.0,
+            w_contrastive: 0.0,
+            contrastive_noise: 0.05,
+            contrastive_temperature: 0.5,
+            w_rim: 1.0,
+            rim_cond_entropy: 1.0,
+            rim_marginal_kl: 1.0,
+            rim_l2: 1e-4,
+            rim_prior_grad: true,
+            rim_warmup_iters: 20,
+            reward_qc: 1.0,
+            reward_qeps: 0.5,
+            reward_disc: 1.0,
+            disc_reward: DiscReward::NegLogOneMinusD,
+            prior_score_coef: 0.0,
+        }
+    }
+}
+
+/// PPO with GAE (policy and value updates).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PpoConfig {
+    /// Hidden widths of the policy and value MLPs (tanh; paper code: 64-64).
+    pub hidden: Vec<usize>,
+    /// Adam learning rate of policy and value.
+    pub lr: f64,
+    /// Adam learning rate of the p(c) logits.
+    pub prior_lr: f64,
+    /// Epochs over each rollout (paper code: 20).
+    pub epochs: usize,
+    /// Minibatch size.
+    pub minibatch: usize,
+    /// Clip range of the probability ratio (0.2).
+    pub clip: f64,
+    /// Discount gamma (0.99).
+    pub gamma: f64,
+    /// GAE lambda (0.95).
+    pub gae_lambda: f64,
+    /// Entropy bonus coefficient.
+    pub entropy_coef: f64,
+    /// Value loss coefficient.
+    pub value_coef: f64,
+    /// Global gradient-norm clip.
+    pub max_grad_norm: f64,
+    /// Initial state-independent log standard deviation of the Gaussian.
+    pub log_std_init: f64,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        Self {
+            hidden: vec![64, 64],
+            lr: 3e-4,
+            prior_lr: 1e-3,
+            epochs: 20,
+            minibatch: 1000,
+            clip: 0.2,
+            gamma: 0.99,
+            gae_lambda: 0.95,
+            entropy_coef: 0.0,
+            value_coef: 0.5,
+            max_grad_norm: 0.5,
+            log_std_init: -0.5,
+        }
+    }
+}
+
+/// Discriminator body with heads D, Q_c and Q_eps.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DiscConfig {
+    /// Hidden widths of the shared body (tanh; paper code: 100-100).
+    pub hidden: Vec<usize>,
+    /// Adam learning rate.
+    pub lr: f64,
+    /// D/Q update steps per iteration (paper code: 50).
+    pub steps: usize,
+    /// Batch size of each update, per data source (paper code: 1000).
+    pub batch: usize,
+}
+
+impl Default for DiscConfig {
+    fn default() -> Self {
+        Self {
+            hidden: vec![100, 100],
+            lr: 3e-4,
+            steps: 50,
+            batch: 1000,
+        }
+    }
+}
+
+/// The run: budget, seed, evaluation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Training seed.
+    pub seed: u64,
+    /// Training iterations (rollout + D/Q + PPO each).
+    pub iterations: usize,
+    /// Environment steps per iteration (paper code: 5000).
+    pub rollout_steps: usize,
+    /// Actor workers (threads for now).
+    pub actors: usize,
+    /// libtorch intra-op threads (0: one per core not used by actors).
+    pub torch_threads: usize,
+    /// Evaluate every this many iterations (0: only at the end).
+    pub eval_every: usize,
+    /// Deterministic evaluation episodes per latent code at the end of training.
+    pub eval_episodes: usize,
+    /// Evaluation episodes per code for the periodic evaluations.
+    pub eval_episodes_periodic: usize,
+    /// Write a checkpoint every this many iterations (0: only at the end).
+    pub checkpoint_every: usize,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            iterations: 300,
+            rollout_steps: 5000,
+            actors: 1,
+            torch_threads: 0,
+            eval_every: 25,
+            eval_episodes: 50,
+            eval_episodes_periodic: 10,
+            checkpoint_every: 100,
+        }
+    }
+}
+
+/// The whole training configuration.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    /// Environment.
+    pub env: EnvConfig,
+    /// Demonstrations.
+    pub demos: DemosConfig,
+    /// Method (objective terms).
+    pub method: MethodConfig,
+    /// PPO.
+    pub ppo: PpoConfig,
+    /// Discriminator and encoders.
+    pub disc: DiscConfig,
+    /// Run budget and evaluation.
+    pub run: RunConfig,
+}
+
+/// A configuration whose values have been checked to be in range.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckedConfig(TrainConfig);
+
+impl std::ops::Deref for CheckedConfig {
+    type Target = TrainConfig;
+    fn deref(&self) -> &TrainConfig {
+        &self.0
+    }
+}
+
+impl CheckedConfig {
+    /// The checked configuration as TOML (what goes into the run directory).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(&self.0).unwrap_or_else(|e| format!("# unserializable: {e}\n"))
+    }
+}
+
+/// Builds a configuration from layers of TOML tables over the defaults.
+#[derive(Debug, Clone)]
+pub struct ConfigBuilder {
+    table: toml::Table,
+}
+
+impl Default for ConfigBuilder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl ConfigBuilder {
+    /// Starts from [`TrainConfig::default`].
+    pub fn new() -> Self {
+        let table =
+            toml::Table::try_from(TrainConfig::default()).unwrap_or_else(|_| unreachable_table());
+        Self { table }
+    }
+
+    /// Merges a TOML document (preset or file) named `source_name` in error messages.
+    pub fn merge_toml(&mut self, source_name: &str, text: &str) -> Result<&mut Self, ConfigError> {
+        let layer: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| ConfigError::Parse {
+                source_name: source_name.to_string(),
+                message: e.message().to_string(),
+            })?;
+        merge_table(&mut self.table, layer, "", source_name)?;
+        Ok(self)
+    }
+
+    /// Applies one `key=value` override; `value` is parsed as TOML, else taken as a string.
+    pub fn set(&mut self, arg: &str) -> Result<&mut Self, ConfigError> {
+        let (key, raw) = arg
+            .split_once('=')
+            .map(|(k, v)| (k.trim(), v.trim()))
+            .filter(|(k, _)| !k.is_empty())
+            .ok_or_else(|| ConfigError::BadOverride { arg: arg.into() })?;
+        let value = parse_value(raw);
+        let mut layer = toml::Table::new();
+        let parts: Vec<&str> = key.split('.').collect();
+        let mut cur = &mut layer;
+        for p in &parts[..parts.len() - 1] {
+            cur = cur
+                .entry((*p).to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+                .as_table_mut()
+                .ok_or_else(|| ConfigError::BadOverride { arg: arg.into() })?;
+        }
+        cur.insert(parts[parts.len() - 1].to_string(), value);
+        merge_table(&mut self.table, layer, "", "--set")?;
+        Ok(self)
+    }
+
+    /// Deserializes and checks the merged configuration.
+    pub fn build(&self) -> Result<CheckedConfig, ConfigError> {
+        let cfg: TrainConfig = self
+            .table
+            .clone()
+            .try_into()
+            .map_err(|e: toml::de::Error| ConfigError::Invalid {
+                message: e.message().trim().to_string(),
+            })?;
+        cfg.check()
+    }
+}
+
+fn unreachable_table() -> toml::Table {
+    // TrainConfig::default always serializes; keep the builder total anyway.
+    toml::Table::new()
+}
+
+fn parse_value(raw: &str) -> toml::Value {
+    let doc = format!("v = {raw}");
+    match doc.parse::<toml::Table>() {
+        Ok(mut t) => t
+            .remove("v")
+            .unwrap_or_else(|| toml::Value::String(raw.into())),
+        Err(_) => toml::Value::String(raw.into()),
+    }
+}
+
+fn type_name(v: &toml::Value) -> &'static str {
+    match v {
+        toml::Value::String(_) => "a string",
+        toml::Value::Integer(_) => "an integer",
+        toml::Value::Float(_) => "a float",
+        toml::Value::Boolean(_) => "a boolean",
+        toml::Value::Datetime(_) => "a datetime",
+        toml::Value::Array(_) => "an array",
+        toml::Value::Table(_) => "a table",
+    }
+}
+
+fn merge_table(
+    base: &mut toml::Table,
+    layer: toml::Table,
+    prefix: &str,
+    source_name: &str,
+) -> Result<(), ConfigError> {
+    for (k, v) in layer {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        let Some(slot) = base.get_mut(&k) else {
+            return Err(ConfigError::UnknownKey {
+                key,
+                source_name: source_name.into(),
+            });
+        };
+        match (slot, v) {
+            (toml::Value::Table(b), toml::Value::Table(l)) => merge_table(b, l, &key, source_name)?,
+            (slot @ toml::Value::Float(_), toml::Value::Integer(i)) => {
+                *slot = toml::Value::Float(i as f64)
+            }
+            // Every integer of the configuration is unsigned.
+            (toml::Value::Integer(_), toml::Value::Integer(i)) if i < 0 => {
+                return Err(ConfigError::OutOfRange {
+                    key,
+                    value: i.to_string(),
+                    reason: "must be >= 0".into(),
+                });
+            }
+            (slot, v) if std::mem::discriminant(slot) == std::mem::discriminant(&v) => *slot = v,
+            (slot, v) => {
+                return Err(ConfigError::WrongType {
+                    key,
+                    source_name: source_name.into(),
+                    expected: type_name(slot).into(),
+                    got: format!("{} ({v})", type_name(&v)),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+fn range<T: std::fmt::Display>(
+    ok: bool,
+    key: &str,
+    value: T,
+    reason: &str,
+) -> Result<(), ConfigError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ConfigError::OutOfRange {
+            key: key.into(),
+            value: value.to_string(),
+            reason: reason.into(),
+        })
+    }
+}
+
+fn finite_nonneg(key: &str, v: f64) -> Result<(), ConfigError> {
+    range(v.is_finite() && v >= 0.0, key, v, "must be finite and >= 0")
+}
+
+fn finite_pos(key: &str, v: f64) -> Result<(), ConfigError> {
+    range(v.is_finite() && v > 0.0, key, v, "must be finite and > 0")
+}
+
+impl TrainConfig {
+    /// Checks every value once; the error names the first key out of range.
+    pub fn check(self) -> Result<CheckedConfig, ConfigError> {
+        let e = &self.env;
+        range(
+            !e.name.is_empty(),
+            "env.name",
+            &e.name,
+            "must name an environment",
+        )?;
+        range(e.n_modes >= 2, "env.n_modes", e.n_modes, "must be >= 2")?;
+        let d = &self.demos;
+        range(
+            d.label_ratio.is_finite() && d.label_ratio > 0.0 && d.label_ratio <= 1.0,
+            "demos.label_ratio",
+            d.label_ratio,
+            "must be in (0, 1]",
+        )?;
+        range(
+            d.imbalance_ratio.is_finite() && d.imbalance_ratio >= 1.0,
+            "demos.imbalance_ratio",
+            d.imbalance_ratio,
+            "must be finite and >= 1",
+        )?;
+        range(
+            d.majority_episodes >= 1,
+            "demos.majority_episodes",
+            d.majority_episodes,
+            "must be >= 1",
+        )?;
+        let m = &self.method;
+        finite_pos("method.gumbel_tau", m.gumbel_tau)?;
+        for (k, v) in [
+            ("method.w_disc", m.w_disc),
+            ("method.w_grad_penalty", m.w_grad_penalty),
+            ("method.w_qeps", m.w_qeps),
+            ("method.w_qc_labeled", m.w_qc_labeled),
+            ("method.w_qc_generated", m.w_qc_generated),
+            ("method.w_qc_full_labels", m.w_qc_full_labels),
+            ("method.w_contrastive", m.w_contrastive),
+            ("method.contrastive_noise", m.contrastive_noise),
+            ("method.w_rim", m.w_rim),
+            ("method.rim_cond_entropy", m.rim_cond_entropy),
+            ("method.rim_marginal_kl", m.rim_marginal_kl),
+            ("method.rim_l2", m.rim_l2),
+            ("method.reward_qc", m.reward_qc),
+            ("method.reward_qeps", m.reward_qeps),
+            ("method.reward_disc", m.reward_disc),
+            ("method.prior_score_coef", m.prior_score_coef),
+        ] {
+            finite_nonneg(k, v)?;
+        }
+        finite_pos("method.contrastive_temperature", m.contrastive_temperature)?;
+        range(
+            m.prior != LatentPrior::None || (m.reward_qc == 0.0 && m.w_qc_generated == 0.0),
+            "method.prior",
+            "\"none\"",
+            "a method without latent skill cannot reward or train Q_c on generated codes",
+        )?;
+        let p = &self.ppo;
+        range(
+            !p.hidden.is_empty() && !p.hidden.contains(&0),
+            "ppo.hidden",
+            format!("{:?}", p.hidden),
+            "must list >= 1 width, all > 0",
+        )?;
+        finite_pos("ppo.lr", p.lr)?;
+        finite_nonneg("ppo.prior_lr", p.prior_lr)?;
+        range(p.epochs >= 1, "ppo.epochs", p.epochs, "must be >= 1")?;
+        range(
+            p.minibatch >= 1,
+            "ppo.minibatch",
+            p.minibatch,
+            "must be >= 1",
+        )?;
+        range(
+            p.clip.is_finite() && p.clip > 0.0 && p.clip < 1.0,
+            "ppo.clip",
+            p.clip,
+            "must be in (0, 1)",
+        )?;
+        range(
+            p.gamma.is_finite() && p.gamma > 0.0 && p.gamma <= 1.0,
+            "ppo.gamma",
+            p.gamma,
+            "must be in (0, 1]",
+        )?;
+        range(
+            p.gae_lambda.is_finite() && (0.0..=1.0).contains(&p.gae_lambda),
+            "ppo.gae_lambda",
+            p.gae_lambda,
+            "must be in [0, 1]",
+        )?;
+        finite_nonneg("ppo.entropy_coef", p.entropy_coef)?;
+        finite_nonneg("ppo.value_coef", p.value_coef)?;
+        finite_pos("ppo.max_grad_norm", p.max_grad_norm)?;
+        range(
+            p.log_std_init.is_finite() && (-10.0..=2.0).contains(&p.log_std_init),
+            "ppo.log_std_init",
+            p.log_std_init,
+            "must be in [-10, 2]",
+        )?;
+        let q = &self.disc;
+        range(
+            !q.hidden.is_empty() && !q.hidden.contains(&0),
+            "disc.hidden",
+            format!("{:?}", q.hidden),
+            "must list >= 1 width, all > 0",
+        )?;
+        finite_pos("disc.lr", q.lr)?;
+        range(q.batch >= 2, "disc.batch", q.batch, "must be >= 2")?;
+        let r = &self.run;
+        range(
+            r.iterations >= 1,
+            "run.iterations",
+            r.iterations,
+            "must be >= 1",
+        )?;
+        range(
+            r.rollout_steps >= 1,
+            "run.rollout_steps",
+            r.rollout_steps,
+            "must be >= 1",
+        )?;
+        range(
+            (1..=256).contains(&r.actors),
+            "run.actors",
+            r.actors,
+            "must be in 1..=256",
+        )?;
+        range(
+            r.torch_threads <= 1024,
+            "run.torch_threads",
+            r.torch_threads,
+            "must be <= 1024",
+        )?;
+        range(
+            r.eval_episodes >= 1,
+            "run.eval_episodes",
+            r.eval_episodes,
+            "must be >= 1",
+        )?;
+        range(
+            r.eval_episodes_periodic >= 1,
+            "run.eval_episodes_periodic",
+            r.eval_episodes_periodic,
+            "must be >= 1",
+        )?;
+        Ok(CheckedConfig(self))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_pass_their_own_check() {
+        let c = ConfigBuilder::new().build().unwrap();
+        assert_eq!(*c, TrainConfig::default());
+    }
+
+    #[test]
+    fn layers_apply_in_order_preset_then_file_then_set() {
+        let mut b = ConfigBuilder::new();
+        b.merge_toml("preset", "[method]\nw_rim = 0.0\n[run]\nseed = 3\n")
+            .unwrap();
+        b.merge_toml("file", "[run]\nseed = 4\n").unwrap();
+        b.set("run.seed=5").unwrap();
+        b.set("method.name=foo").unwrap();
+        let c = b.build().unwrap();
+        assert_eq!(c.method.w_rim, 0.0);
+        assert_eq!(c.run.seed, 5);
+        assert_eq!(c.method.name, "foo");
+    }
+
+    #[test]
+    fn integer_is_accepted_where_a_float_is_expected() {
+        let c = ConfigBuilder::new()
+            .set("ppo.lr=1")
+            .unwrap()
+            .build()
+            .unwrap();
+        assert_eq!(c.ppo.lr, 1.0);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let e = ConfigBuilder::new()
+            .set("ppo.lrr=1")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`ppo.lrr`"), "{e}");
+        let e = ConfigBuilder::new()
+            .merge_toml("my.toml", "[nope]\nx = 1\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`nope`") && e.contains("my.toml"), "{e}");
+    }
+
+    #[test]
+    fn wrong_type_is_named_with_expected_type() {
+        let e = ConfigBuilder::new()
+            .set("run.iterations=\"many\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`run.iterations`") && e.contains("an integer"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn out_of_range_values_are_rejected_with_key_and_value() {
+        for (arg, key) in [
+            ("demos.label_ratio=1.5", "demos.label_ratio"),
+            ("demos.label_ratio=0", "demos.label_ratio"),
+            ("demos.imbalance_ratio=0.5", "demos.imbalance_ratio"),
+            ("env.n_modes=1", "env.n_modes"),
+            ("ppo.clip=0", "ppo.clip"),
+        ] {
+            let e = ConfigBuilder::new()
+                .set(arg)
+                .unwrap()
+                .build()
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(key), "{arg}: {e}");
+        }
+    }
+
+    #[test]
+    fn negative_integer_for_unsigned_key_is_rejected_with_key() {
+        let e = ConfigBuilder::new()
+            .set("run.iterations=-3")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("iterations"), "{e}");
+    }
+
+    #[test]
+    fn override_without_equals_is_rejected() {
+        assert!(matches!(
+            ConfigBuilder::new().set("run.seed").unwrap_err(),
+            ConfigError::BadOverride { .. }
+        ));
+    }
+
+    #[test]
+    fn checked_config_round_trips_through_toml() {
+        let c = ConfigBuilder::new().build().unwrap();
+        let mut b = ConfigBuilder::new();
+        b.merge_toml("resolved", &c.to_toml()).unwrap();
+        assert_eq!(b.build().unwrap(), c);
+    }
+}

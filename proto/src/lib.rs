@@ -1,0 +1,18 @@
+//! `ess-proto`: every contract between Ess processes and on disk.
+//!
+//! - [`config`]: the training configuration (serde TOML, `deny_unknown_fields`), its
+//!   layering (defaults < preset < file < `--set k=v`) and its validation into a
+//!   [`config::CheckedConfig`]. Defaults state the paper's values.
+//! - [`weights`]: the flat `f32` layout of an MLP's parameters, shared by the learner
+//!   (which exports them) and the actors (which run the pure-Rust forward pass).
+//! - [`chunk`]: the transition chunk an actor hands the learner.
+//!
+//! This crate depends on nothing internal and never on tch or MuJoCo.
+
+pub mod chunk;
+pub mod config;
+pub mod weights;
+
+pub use chunk::Chunk;
+pub use config::{CheckedConfig, ConfigError, TrainConfig};
+pub use weights::{MlpLayout, WeightsError};

@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# Idempotent set-up: installs, from the package registries only, what the build needs
+# into .deps/ (git-ignored) and writes .deps/env.sh with the variables to export.
+#   - libtorch from PyPI's torch==2.11.0 (what tch =0.24.0 links against), plus the two
+#     CUDA runtime libraries libtorch_cpu.so needs even on CPU;
+#   - MuJoCo 3.17.0's shared library from PyPI's mujoco==3.17.0 wheel (for mujoco-rs).
+# Safe to run any number of times: each step is skipped when its result is in place.
+set -euo pipefail
+
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+deps="$root/.deps"
+py_dir="$deps/py"
+mj_dir="$deps/mujoco"
+TORCH_VERSION=2.11.0
+MUJOCO_VERSION=3.17.0
+PY=${PYTHON:-python3}
+
+say() { printf 'bootstrap: %s\n' "$*" >&2; }
+die() { say "error: $*"; exit 1; }
+
+command -v cargo >/dev/null 2>&1 || die "cargo not found: install Rust (rustup) first; rust-toolchain.toml pins the version"
+command -v "$PY" >/dev/null 2>&1 || die "$PY not found: Python 3 with pip is needed to fetch libtorch and MuJoCo from PyPI"
+"$PY" -m pip --version >/dev/null 2>&1 || die "'$PY -m pip' does not work: install pip (Debian: python3-pip)"
+command -v cc >/dev/null 2>&1 || die "no C compiler (cc) found: install build-essential"
+
+mkdir -p "$deps"
+
+# --- libtorch -------------------------------------------------------------------------
+stamp="$py_dir/.torch-$TORCH_VERSION.ok"
+if [ ! -f "$stamp" ]; then
+  say "installing torch==$TORCH_VERSION (libtorch, ~530 MB) and CUDA runtime stubs into $py_dir"
+  "$PY" -m pip install --quiet --disable-pip-version-check --no-deps --no-compile \
+    --target "$py_dir" --upgrade \
+    "torch==$TORCH_VERSION" "nvidia-cuda-cupti==13.0.85.*" "nvidia-cuda-runtime==13.0.96.*"
+  [ -f "$py_dir/torch/lib/libtorch_cpu.so" ] || die "torch wheel installed but $py_dir/torch/lib/libtorch_cpu.so is missing"
+  touch "$stamp"
+else
+  say "libtorch $TORCH_VERSION already in $py_dir"
+fi
+
+# --- MuJoCo ---------------------------------------------------------------------------
+if [ ! -f "$mj_dir/libmujoco.so.$MUJOCO_VERSION" ]; then
+  say "fetching mujoco==$MUJOCO_VERSION's libmujoco.so into $mj_dir"
+  tmp=$(mktemp -d)
+  trap 'rm -rf "$tmp"' EXIT
+  "$PY" -m pip download --quiet --disable-pip-version-check --no-deps --only-binary=:all: \
+    -d "$tmp" "mujoco==$MUJOCO_VERSION"
+  mkdir -p "$mj_dir"
+  "$PY" - "$tmp" "$mj_dir" "$MUJOCO_VERSION" <<'PYEOF'
+import glob, os, sys, zipfile
+tmp, out, ver = sys.argv[1:]
+wheels = glob.glob(os.path.join(tmp, "mujoco-*.whl"))
+if not wheels:
+    sys.exit(f"bootstrap: error: no mujoco wheel downloaded into {tmp}")
+name = f"libmujoco.so.{ver}"
+with zipfile.ZipFile(wheels[0]) as z:
+    members = [m for m in z.namelist() if m.endswith("/" + name)]
+    if not members:
+        sys.exit(f"bootstrap: error: {wheels[0]} holds no {name}")
+    with z.open(members[0]) as src, open(os.path.join(out, name + ".part"), "wb") as dst:
+        dst.write(src.read())
+os.replace(os.path.join(out, name + ".part"), os.path.join(out, name))
+PYEOF
+  ln -sf "libmujoco.so.$MUJOCO_VERSION" "$mj_dir/libmujoco.so"
+else
+  say "MuJoCo $MUJOCO_VERSION already in $mj_dir"
+fi
+
+# --- env file -------------------------------------------------------------------------
+torch_dir="$py_dir/torch"
+cu_dir="$py_dir/nvidia/cu13/lib"
+cat > "$deps/env.sh.part" <<ENVEOF
+# Written by scripts/bootstrap.sh; source it before cargo.
+export LIBTORCH="$torch_dir"
+export LIBTORCH_CXX11_ABI=1
+export MUJOCO_DYNAMIC_LINK_DIR="$mj_dir"
+export LD_LIBRARY_PATH="$torch_dir/lib:$cu_dir:$mj_dir\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}"
+ENVEOF
+mv "$deps/env.sh.part" "$deps/env.sh"
+say "ready: source $deps/env.sh"

@@ -1,0 +1,163 @@
+//! The `ess` command as a user runs it: bad input is rejected with one clear line and
+//! exit code 2; every preset trains end to end and writes its outputs.
+
+use ess_tests::{SMOKE, ess};
+
+fn stderr(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn assert_input_error(args: &[&str], must_name: &str) {
+    let o = ess(args);
+    let err = stderr(&o);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{args:?} should exit 2; stderr: {err}"
+    );
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("error"))
+        .unwrap_or_else(|| panic!("no error line for {args:?}: {err}"));
+    assert!(
+        line.contains(must_name),
+        "{args:?}: `{line}` should name `{must_name}`"
+    );
+}
+
+#[test]
+fn unknown_preset_is_rejected_naming_it() {
+    assert_input_error(&["train", "--preset", "gial", "--print-config"], "gial");
+}
+
+#[test]
+fn unknown_config_key_is_rejected_naming_it() {
+    assert_input_error(
+        &["train", "--set", "ppo.lrr=1", "--print-config"],
+        "ppo.lrr",
+    );
+}
+
+#[test]
+fn wrong_type_is_rejected_naming_the_key() {
+    assert_input_error(
+        &["train", "--set", "run.iterations=lots", "--print-config"],
+        "run.iterations",
+    );
+}
+
+#[test]
+fn out_of_range_values_are_rejected_naming_the_key() {
+    for (set, key) in [
+        ("demos.label_ratio=0", "demos.label_ratio"),
+        ("demos.label_ratio=1.5", "demos.label_ratio"),
+        ("demos.imbalance_ratio=0.5", "demos.imbalance_ratio"),
+        ("env.n_modes=1", "env.n_modes"),
+    ] {
+        assert_input_error(&["train", "--set", set, "--print-config"], key);
+    }
+}
+
+#[test]
+fn unknown_env_is_rejected_naming_it() {
+    assert_input_error(&["train", "--env", "mars", "--print-config"], "mars");
+}
+
+#[test]
+fn config_file_with_unknown_key_is_rejected_naming_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("my.toml");
+    std::fs::write(&f, "[run]\nseeds = 3\n").unwrap();
+    let o = ess(&["train", "--config", f.to_str().unwrap(), "--print-config"]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("run.seeds") && err.contains("my.toml"),
+        "{err}"
+    );
+}
+
+#[test]
+fn corrupt_demo_file_is_rejected_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("demos.safetensors");
+    std::fs::write(&f, b"not a safetensors file at all").unwrap();
+    let o = ess(&["demos", "inspect", f.to_str().unwrap()]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("demos.safetensors"), "{err}");
+}
+
+#[test]
+fn demos_generate_writes_a_file_that_inspect_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("d.safetensors");
+    let o = ess(&[
+        "demos",
+        "generate",
+        "--out",
+        f.to_str().unwrap(),
+        "--set",
+        "demos.majority_episodes=10",
+        "--set",
+        "demos.imbalance_ratio=5",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = ess(&["demos", "inspect", f.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let meta: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        meta["unlabeled_episodes_per_mode"],
+        serde_json::json!([10, 10, 2, 2])
+    );
+}
+
+#[test]
+fn every_preset_trains_a_few_iterations_and_writes_its_outputs() {
+    let presets = [
+        "gail",
+        "infogail",
+        "acgail",
+        "elastic-infogail",
+        "ess-infogail-no-gs",
+        "ess-infogail-no-rim",
+        "ess-infogail",
+    ];
+    for p in presets {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        let mut args = vec!["train", "--preset", p, "--out", out.to_str().unwrap()];
+        args.extend_from_slice(SMOKE);
+        let o = ess(&args);
+        assert!(o.status.success(), "{p}: {}", stderr(&o));
+        for f in [
+            "config.toml",
+            "metrics.csv",
+            "summary.json",
+            "trajectories.png",
+            "curves.png",
+            "checkpoints/policy-latest.safetensors",
+        ] {
+            assert!(out.join(f).exists(), "{p}: missing {f}");
+        }
+        let s: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                .unwrap();
+        for key in [
+            "nmi",
+            "ent",
+            "normalized_reward",
+            "env_steps",
+            "wall_seconds",
+        ] {
+            assert!(s[key].is_number(), "{p}: summary.json lacks {key}: {s}");
+        }
+        let nmi = s["nmi"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&nmi), "{p}: nmi {nmi}");
+        assert_eq!(s["env_steps"].as_u64(), Some(800), "{p}");
+        assert_eq!(s["method"].as_str(), Some(p));
+        // metrics.csv: header + one row per iteration + the final evaluation row.
+        let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+        assert_eq!(csv.lines().count(), 1 + 2 + 1, "{p}: {csv}");
+    }
+}
