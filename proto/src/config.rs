@@ -177,11 +177,15 @@ pub struct MethodConfig {
     /// RIM: L2 regularisation of the encoder parameters R(psi).
     pub rim_l2: f64,
     /// Let RIM's KL term also move the p(c) logits (Eq. 9 minimises L_RIM over p(c)),
-    /// so p(c) follows Q_c's label marginal on the unlabeled expert data.
+    /// so p(c) follows Q_c's label marginal on the unlabeled expert data. Off by
+    /// default: p(c) then learns the imbalance (0.49/0.49/0.005/0.005 on Traj2D) and
+    /// the minority codes are sampled too rarely to be learned (bench/README.md).
     pub rim_prior_grad: bool,
     /// RIM weight ramps linearly from 0 to `w_rim` over this many iterations.
     pub rim_warmup_iters: usize,
     /// Policy reward weight of log Q_c(c | s, a) (lambda_2 in Eq. 9 / Eq. 5 for pi).
+    /// 4 (not 1): on Traj2D with imbalance 100, weaker weights let the discriminator
+    /// pull the minority codes onto the majority modes (bench/README.md, tuning notes).
     pub reward_qc: f64,
     /// Policy reward weight of -|Q_eps(s, a) - eps| (lambda_1 in Eq. 3).
     pub reward_qeps: f64,
@@ -217,12 +221,12 @@ impl Default for MethodConfig {
             rim_cond_entropy: 1.0,
             rim_marginal_kl: 1.0,
             rim_l2: 1e-4,
-            rim_prior_grad: true,
+            rim_prior_grad: false,
             rim_warmup_iters: 20,
-            reward_qc: 1.0,
+            reward_qc: 4.0,
             reward_qeps: 0.5,
             reward_disc: 1.0,
-            disc_reward: DiscReward::NegLogOneMinusD,
+            disc_reward: DiscReward::Logit,
             prior_score_coef: 0.0,
         }
     }
