@@ -337,4 +337,23 @@ mod tests {
     fn a_fixed_uniform_prior_is_never_updated() {
         assert_eq!(prior_after_update(LatentPrior::Uniform), vec![0.0; 3]);
     }
+
+    #[test]
+    fn score_step_moves_p_of_c_toward_the_rewarded_code() {
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let pvs = nn::VarStore::new(tch::Device::Cpu);
+        let cfg = PpoConfig {
+            prior_lr: 0.05,
+            ..PpoConfig::default()
+        };
+        let mut l = PpoLearner::new(&vs, &pvs, 4, 1, 2, &cfg, LatentPrior::Gumbel, 0.1).unwrap();
+        // Code 0 steps earn 1, code 1 steps earn 0.
+        let code = tensor_2d(&[1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0], 2);
+        let reward = Tensor::from_slice(&[1.0f32, 0.0, 1.0, 0.0]);
+        for _ in 0..20 {
+            l.prior_score_step(&code, &reward, 1.0);
+        }
+        let p = l.prior_probs();
+        assert!(p[0] > 0.6, "{p:?}");
+    }
 }
