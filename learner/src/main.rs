@@ -7,9 +7,9 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use ess_envs::{DemoSpec, generate_demos};
+use ess_envs::generate_demos;
 use ess_learner::presets::{PRESETS, preset};
-use ess_learner::train::{IterationLog, Progress, run};
+use ess_learner::train::{IterationLog, Progress, demo_spec, run};
 use ess_proto::config::{CheckedConfig, ConfigBuilder};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -277,15 +277,7 @@ fn demos(cmd: DemosCmd) -> Result<()> {
     match cmd {
         DemosCmd::Generate { config, out } => {
             let cfg = resolve(&config)?;
-            let spec = DemoSpec {
-                env: cfg.env.name.clone(),
-                n_modes: cfg.env.n_modes,
-                label_ratio: cfg.demos.label_ratio,
-                imbalance_ratio: cfg.demos.imbalance_ratio,
-                majority_episodes: cfg.demos.majority_episodes,
-                seed: cfg.demos.seed,
-            };
-            let d = generate_demos(&spec).map_err(input_err)?;
+            let d = generate_demos(&demo_spec(&cfg)).map_err(input_err)?;
             d.save(&out)?;
             println!("wrote {}", out.display());
             println!("{}", serde_json::to_string_pretty(&d.meta)?);

@@ -184,18 +184,22 @@ fn scalar(t: &Tensor) -> f64 {
     f64::try_from(t).unwrap_or(f64::NAN)
 }
 
+/// The dataset a configuration asks for.
+pub fn demo_spec(cfg: &CheckedConfig) -> DemoSpec {
+    DemoSpec {
+        env: cfg.env.name.clone(),
+        n_modes: cfg.env.n_modes,
+        label_ratio: cfg.demos.label_ratio,
+        imbalance_ratio: cfg.demos.imbalance_ratio,
+        majority_episodes: cfg.demos.majority_episodes,
+        seed: cfg.demos.seed,
+    }
+}
+
 /// Loads the configured dataset or generates it.
 pub fn load_or_generate_demos(cfg: &CheckedConfig) -> Result<Demos> {
     if cfg.demos.path.is_empty() {
-        let spec = DemoSpec {
-            env: cfg.env.name.clone(),
-            n_modes: cfg.env.n_modes,
-            label_ratio: cfg.demos.label_ratio,
-            imbalance_ratio: cfg.demos.imbalance_ratio,
-            majority_episodes: cfg.demos.majority_episodes,
-            seed: cfg.demos.seed,
-        };
-        Ok(generate_demos(&spec)?)
+        Ok(generate_demos(&demo_spec(cfg))?)
     } else {
         let path = PathBuf::from(&cfg.demos.path);
         let d = Demos::load(&path)?;
@@ -624,7 +628,7 @@ pub fn run(
         cfg.run.eval_episodes,
         seed ^ 0xF1AA,
     )?;
-    let mut last = IterationLog {
+    let last = IterationLog {
         iteration: iters_done,
         env_steps,
         wall_s: wall,
@@ -639,7 +643,6 @@ pub fn run(
             .join(";"),
         ..Default::default()
     };
-    last.iteration = iters_done;
     write_csv_row(&mut csv, &last)?;
     csv.flush()?;
 
