@@ -464,9 +464,15 @@ pub fn run(
                 loss += r.weighted(m.rim_cond_entropy, m.rim_marginal_kl, m.rim_l2) * rim_w;
             }
             if m.w_contrastive > 0.0 {
-                let noisy = &xe.detach() + xe.randn_like() * m.contrastive_noise;
+                let nc = (m.contrastive_batch as i64).min(batch);
+                let xc = xe.detach().narrow(0, 0, nc);
+                let noisy = &xc + xc.randn_like() * m.contrastive_noise;
                 let z2 = disc.forward(&noisy).qc_logits;
-                let l = nt_xent(&oe.qc_logits, &z2, m.contrastive_temperature);
+                let l = nt_xent(
+                    &oe.qc_logits.narrow(0, 0, nc),
+                    &z2,
+                    m.contrastive_temperature,
+                );
                 if last {
                     log.contrastive = scalar(&l);
                 }

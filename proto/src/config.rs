@@ -168,6 +168,9 @@ pub struct MethodConfig {
     pub contrastive_noise: f64,
     /// Temperature of the contrastive loss.
     pub contrastive_temperature: f64,
+    /// Expert transitions per D/Q step that enter the contrastive loss (its cost grows
+    /// with the square of this).
+    pub contrastive_batch: usize,
     /// RIM weight lambda_3 (Eq. 8) on unlabeled expert data.
     pub w_rim: f64,
     /// RIM: weight of the mean conditional entropy (cluster assumption).
@@ -217,6 +220,7 @@ impl Default for MethodConfig {
             w_contrastive: 0.0,
             contrastive_noise: 0.05,
             contrastive_temperature: 0.5,
+            contrastive_batch: 256,
             w_rim: 1.0,
             rim_cond_entropy: 1.0,
             rim_marginal_kl: 1.0,
@@ -600,6 +604,12 @@ impl TrainConfig {
             finite_nonneg(k, v)?;
         }
         finite_pos("method.contrastive_temperature", m.contrastive_temperature)?;
+        range(
+            m.contrastive_batch >= 2,
+            "method.contrastive_batch",
+            m.contrastive_batch,
+            "must be >= 2",
+        )?;
         range(
             m.prior != LatentPrior::None || (m.reward_qc == 0.0 && m.w_qc_generated == 0.0),
             "method.prior",
