@@ -732,7 +732,12 @@ mod tests {
         let err = Reacher::from_mjcf("<mujoco><worldbody><body>", ReacherConfig::default())
             .expect_err("malformed");
         assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        assert!(err.to_string().contains("MJCF"), "{err}");
+        let msg = err.to_string();
+        // Our prefix, then MuJoCo's own parse message.
+        assert!(
+            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
+            "{msg}"
+        );
     }
 
     #[test]
@@ -869,6 +874,25 @@ mod tests {
         let a = run(&mut env, 2, expert(1));
         let b = run(&mut env, 2, expert(1));
         assert_eq!(a, b);
+    }
+
+    #[test]
+    fn demonstrations_can_be_generated_from_the_reacher_expert() {
+        let spec = crate::DemoSpec {
+            env: "reacher".into(),
+            n_modes: 4,
+            label_ratio: 0.1,
+            imbalance_ratio: 10.0,
+            majority_episodes: 4,
+            seed: 3,
+        };
+        let demos = crate::generate_demos(&spec).expect("generate");
+        let n = demos.unlabeled.len();
+        assert!(n > 0 && n % 50 == 0, "{n} steps");
+        assert_eq!(demos.unlabeled.obs.len(), n * Reacher::OBS_DIM);
+        assert_eq!(demos.unlabeled.act.len(), n * Reacher::ACT_DIM);
+        assert!(demos.unlabeled.act.iter().all(|a| a.abs() < 1.0));
+        assert!(!demos.labeled.mode.is_empty());
     }
 
     #[test]
