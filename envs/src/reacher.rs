@@ -888,7 +888,7 @@ mod tests {
         };
         let demos = crate::generate_demos(&spec).expect("generate");
         let n = demos.unlabeled.len();
-        assert!(n > 0 && n % 50 == 0, "{n} steps");
+        assert!(n > 0 && n.is_multiple_of(50), "{n} steps");
         assert_eq!(demos.unlabeled.obs.len(), n * Reacher::OBS_DIM);
         assert_eq!(demos.unlabeled.act.len(), n * Reacher::ACT_DIM);
         assert!(demos.unlabeled.act.iter().all(|a| a.abs() < 1.0));
