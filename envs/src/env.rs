@@ -15,10 +15,11 @@
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::reacher::{Reacher, ReacherConfig};
 use crate::traj2d::{Traj2D, Traj2DConfig};
 
 /// Names accepted by [`make_env`].
-pub const KNOWN_ENVS: &[&str] = &["traj2d"];
+pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher"];
 
 /// Static description of an environment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -113,6 +114,18 @@ pub enum EnvError {
         /// Why it is rejected.
         reason: String,
     },
+    /// A MuJoCo model (MJCF) failed to load or does not have the shape the env needs.
+    #[error("invalid MJCF model: {reason}")]
+    Model {
+        /// MuJoCo's message, or what the model lacks.
+        reason: String,
+    },
+    /// The physics simulation raised a warning (typically a diverging, unstable state).
+    #[error("simulation failed: {reason}")]
+    Simulation {
+        /// What MuJoCo reported.
+        reason: String,
+    },
 }
 
 /// A single episodic environment.
@@ -148,10 +161,10 @@ pub trait ScriptedExpert: Env {
     ) -> Result<(), EnvError>;
 }
 
-/// Builds an env by name (`"traj2d"` for now). `n_modes` is the requested number of
-/// behaviour modes: traj2d supports exactly 4, anything else is
-/// [`EnvError::BadParam`]. An unknown name is [`EnvError::UnknownEnv`], listing the
-/// known ones.
+/// Builds an env by name (`"traj2d"` or `"reacher"`). `n_modes` is the requested
+/// number of behaviour modes: traj2d supports exactly 4, reacher 2 to 12 (targets);
+/// anything else is [`EnvError::BadParam`] naming `n_modes`. An unknown name is
+/// [`EnvError::UnknownEnv`], listing the known ones.
 pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, EnvError> {
     match name {
         "traj2d" => {
@@ -164,6 +177,10 @@ pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, E
             }
             Ok(Box::new(Traj2D::new(Traj2DConfig::default())?))
         }
+        "reacher" => Ok(Box::new(Reacher::new(ReacherConfig {
+            n_modes,
+            ..ReacherConfig::default()
+        })?)),
         _ => Err(EnvError::UnknownEnv {
             name: name.to_owned(),
             known: KNOWN_ENVS.join(", "),
@@ -208,7 +225,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     /// Every (name, n_modes) that `make_env` must support.
-    const ALL_ENVS: &[(&str, usize)] = &[("traj2d", 4)];
+    const ALL_ENVS: &[(&str, usize)] = &[("traj2d", 4), ("reacher", 2), ("reacher", 6)];
 
     fn build(name: &str, n_modes: usize) -> Box<dyn ScriptedExpert> {
         make_env(name, n_modes).expect("known env builds")
@@ -377,5 +394,18 @@ mod tests {
             "{err}"
         );
         assert!(err.to_string().contains("n_modes = 6"), "{err}");
+        for k in [1, 13] {
+            let err = make_env("reacher", k).err().expect("bad n_modes");
+            assert!(err.to_string().contains(&format!("n_modes = {k}")), "{err}");
+        }
+    }
+
+    #[test]
+    fn make_env_builds_reacher_with_the_requested_number_of_targets() {
+        for k in 2..=12 {
+            let env = build("reacher", k);
+            assert_eq!(env.spec().n_modes, k);
+            assert_eq!(env.spec().name, "reacher");
+        }
     }
 }

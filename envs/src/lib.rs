@@ -5,17 +5,22 @@
 //!   extension for environments with scripted multi-modal experts, and [`make_env`].
 //! - [`traj2d`]: the 2D trajectory task of the paper (Sec. 4, Fig. 1): four circular
 //!   behaviour modes through the origin.
+//! - [`reacher`]: the multi-target Reacher task (Sec. 4, "Task setup (2)") on MuJoCo:
+//!   a two-link arm, one hidden target per behaviour mode.
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
-//! This crate never links libtorch, tokio or tonic.
+//! This crate never links libtorch, tokio or tonic; it links MuJoCo (through
+//! `mujoco-rs`) for [`reacher`].
 
 pub mod demos;
 pub mod env;
+pub mod reacher;
 pub mod traj2d;
 
 pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
 pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env};
+pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};
