@@ -238,13 +238,22 @@ fn train(args: TrainArgs) -> Result<()> {
     let s = &result.summary;
     println!("method             {}", s.method);
     println!("env                {} (seed {})", s.env, s.seed);
+    // The paper's Table 1 value for this env and method, where it has one.
+    let paper = ess_learner::presets::paper_table1(&s.env, &s.method)
+        .map(|(n, e)| {
+            (
+                format!("; paper Table 1: {n:.3}"),
+                format!("; paper: {e:.3}"),
+            )
+        })
+        .unwrap_or_default();
     println!(
-        "NMI                {:.3}   (higher is better; paper Table 1, 2D: Ess-InfoGAIL 0.910)",
-        s.nmi
+        "NMI                {:.3}   (higher is better{})",
+        s.nmi, paper.0
     );
     println!(
-        "ENT                {:.3}   (lower is better; paper: 0.131)",
-        s.ent
+        "ENT                {:.3}   (lower is better{})",
+        s.ent, paper.1
     );
     println!(
         "normalized reward  {:.3}   (random 0, expert 1)",
@@ -266,8 +275,13 @@ fn train(args: TrainArgs) -> Result<()> {
         "per iteration      rollout {:.3} s, D/Q {:.3} s, PPO {:.3} s",
         s.seconds_per_iteration.rollout, s.seconds_per_iteration.disc, s.seconds_per_iteration.ppo
     );
+    let traj = if s.env == "traj2d" {
+        "trajectories.png,"
+    } else {
+        ""
+    };
     println!(
-        "outputs            {}/{{summary.json,metrics.csv,config.toml,trajectories.png,curves.png,checkpoints/}}",
+        "outputs            {}/{{summary.json,metrics.csv,config.toml,{traj}curves.png,checkpoints/}}",
         out.display()
     );
     Ok(())

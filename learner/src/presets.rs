@@ -42,6 +42,66 @@ pub fn preset(name: &str) -> Result<&'static str, String> {
         })
 }
 
+/// The paper's Table 1 `(NMI, ENT)` for `env` and `method`, where it reports one.
+pub fn paper_table1(env: &str, method: &str) -> Option<(f64, f64)> {
+    let col = ["traj2d", "reacher", "pusher", "walker2d", "humanoid"]
+        .iter()
+        .position(|e| *e == env)?;
+    let row: [(f64, f64); 5] = match method {
+        "gail" => [
+            (0.392, 0.529),
+            (0.153, 1.055),
+            (0.376, 0.723),
+            (0.439, 0.406),
+            (0.388, 0.597),
+        ],
+        "infogail" => [
+            (0.742, 0.371),
+            (0.301, 1.113),
+            (0.604, 0.551),
+            (0.657, 0.284),
+            (0.550, 0.487),
+        ],
+        "acgail" => [
+            (0.783, 0.324),
+            (0.537, 0.781),
+            (0.754, 0.409),
+            (0.658, 0.340),
+            (0.544, 0.478),
+        ],
+        "elastic-infogail" => [
+            (0.773, 0.330),
+            (0.311, 1.101),
+            (0.650, 0.537),
+            (0.615, 0.351),
+            (0.503, 0.498),
+        ],
+        "ess-infogail-no-gs" => [
+            (0.892, 0.157),
+            (0.607, 0.661),
+            (0.857, 0.194),
+            (0.740, 0.262),
+            (0.638, 0.360),
+        ],
+        "ess-infogail-no-rim" => [
+            (0.893, 0.159),
+            (0.575, 0.725),
+            (0.875, 0.188),
+            (0.715, 0.274),
+            (0.642, 0.347),
+        ],
+        "ess-infogail" => [
+            (0.910, 0.131),
+            (0.662, 0.587),
+            (0.906, 0.144),
+            (0.755, 0.237),
+            (0.696, 0.206),
+        ],
+        _ => return None,
+    };
+    Some(row[col])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -55,6 +115,18 @@ mod tests {
             let c = b.build().unwrap();
             assert_eq!(c.method.name, *name);
         }
+    }
+
+    #[test]
+    fn paper_table1_has_a_row_for_every_preset() {
+        for (name, _) in PRESETS {
+            assert!(paper_table1("traj2d", name).is_some(), "{name}");
+        }
+        assert_eq!(
+            paper_table1("reacher", "ess-infogail"),
+            Some((0.662, 0.587))
+        );
+        assert_eq!(paper_table1("mars", "gail"), None);
     }
 
     #[test]
