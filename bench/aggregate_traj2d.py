@@ -59,3 +59,6 @@ if os.path.exists(t):
     print(f"| total | {total:.3f} |")
     print(f"\nEnd to end: **{s['env_steps_per_second']:.0f} env steps/s** "
           f"({s['env_steps']} steps in {s['wall_seconds']:.1f} s).")
+notes = os.path.join(os.path.dirname(os.path.abspath(__file__)), "traj2d-notes.md")
+if os.path.exists(notes):
+    print(open(notes).read(), end="")
