@@ -61,7 +61,7 @@ pub fn plot_traj2d(
         .collect();
     let panels = [
         TrajPanel {
-            title: format!("expert demos (episodes/mode {})", counts.join(":")),
+            title: format!("demos, episodes/mode {}", counts.join(":")),
             paths: expert_paths,
         },
         TrajPanel {
