@@ -154,30 +154,16 @@ struct ExpertData {
     labels: Tensor,
 }
 
-fn disc_inputs(
-    obs: &[f32],
-    act: &[f32],
-    od: usize,
-    ad: usize,
-    mean: &[f32],
-    std: &[f32],
-) -> Tensor {
-    let n = obs.len() / od;
-    let mut v = Vec::with_capacity(n * (od + ad));
-    for (o, a) in obs.chunks_exact(od).zip(act.chunks_exact(ad)) {
-        v.extend(o.iter().zip(mean).zip(std).map(|((x, m), s)| (x - m) / s));
-        v.extend_from_slice(a);
-    }
-    tensor_2d(&v, od + ad)
+/// `[n, obs_dim]` observations normalised with the expert statistics.
+fn norm_obs(obs: &[f32], mean: &[f32], std: &[f32]) -> Tensor {
+    let mut v = obs.to_vec();
+    crate::classifier::normalize_rows(&mut v, mean, std);
+    tensor_2d(&v, mean.len())
 }
 
-fn norm_obs(obs: &[f32], mean: &[f32], std: &[f32]) -> Tensor {
-    let d = mean.len();
-    let v: Vec<f32> = obs
-        .chunks_exact(d)
-        .flat_map(|o| o.iter().zip(mean).zip(std).map(|((x, m), s)| (x - m) / s))
-        .collect();
-    tensor_2d(&v, d)
+/// Discriminator inputs `[norm(s), a]` from normalised observations and actions.
+fn disc_inputs(obs_n: &Tensor, act: &[f32], ad: usize) -> Tensor {
+    Tensor::cat(&[obs_n, &tensor_2d(act, ad)], 1)
 }
 
 fn scalar(t: &Tensor) -> f64 {
@@ -266,12 +252,9 @@ pub fn run(
     let (obs_mean, obs_std) = crate::classifier::feature_stats(&demos.unlabeled.obs, od);
     let expert = ExpertData {
         unlabeled: disc_inputs(
-            &demos.unlabeled.obs,
+            &norm_obs(&demos.unlabeled.obs, &obs_mean, &obs_std),
             &demos.unlabeled.act,
-            od,
             ad,
-            &obs_mean,
-            &obs_std,
         ),
         unlabeled_mode: Tensor::from_slice(
             &demos
@@ -282,12 +265,9 @@ pub fn run(
                 .collect::<Vec<_>>(),
         ),
         labeled: disc_inputs(
-            &demos.labeled.obs,
+            &norm_obs(&demos.labeled.obs, &obs_mean, &obs_std),
             &demos.labeled.act,
-            od,
             ad,
-            &obs_mean,
-            &obs_std,
         ),
         labels: Tensor::from_slice(
             &demos
@@ -389,7 +369,8 @@ pub fn run(
 
         // --- discriminator and encoders ----------------------------------------------
         let t1 = Instant::now();
-        let gen_x = disc_inputs(&all.obs, &all.act, od, ad, &obs_mean, &obs_std);
+        let obs_n = norm_obs(&all.obs, &obs_mean, &obs_std);
+        let gen_x = disc_inputs(&obs_n, &all.act, ad);
         let gen_code = tensor_2d(&all.code, k);
         let gen_eps = Tensor::from_slice(&all.eps);
         let n_gen = all.len() as i64;
@@ -507,7 +488,6 @@ pub fn run(
             qc: m.reward_qc,
             qeps: if m.use_eps { m.reward_qeps } else { 0.0 },
         };
-        let obs_n = norm_obs(&all.obs, &obs_mean, &obs_std);
         let next_n = norm_obs(&all.next_obs, &obs_mean, &obs_std);
         let eps_col = column(&all.eps);
         let (rewards, values, next_values, disc_r) = tch::no_grad(|| {
