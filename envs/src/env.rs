@@ -147,6 +147,20 @@ pub trait Env: Send {
     /// imitation policy never sees it. Before the first step of an episode it scores
     /// the start state.
     fn mode_rewards(&self, out: &mut [f32]);
+
+    /// Task reward of the last transition for each behaviour mode (the reward an
+    /// expert of that mode is trained on), written like [`Env::mode_rewards`]. The
+    /// default is the evaluation reward; an env overrides it where training needs
+    /// shaping that scoring must not see.
+    fn task_rewards(&self, out: &mut [f32]) {
+        self.mode_rewards(out);
+    }
+
+    /// Forward velocity of the body in m/s after the last step, for locomotion envs
+    /// (reported per mode by `ess experts eval`); `None` where it has no meaning.
+    fn forward_velocity(&self) -> Option<f64> {
+        None
+    }
 }
 
 /// An env whose behaviour modes have a scripted (stochastic) expert.
@@ -218,148 +232,31 @@ pub(crate) fn check_action(action: &[f32], expected: usize) -> Result<(), EnvErr
 }
 
 #[cfg(test)]
+pub(crate) mod conformance;
+
+#[cfg(test)]
 mod tests {
-    //! Conformance suite: every env built by [`make_env`] obeys the [`Env`] contract.
-
+    use super::conformance::check_env;
     use super::*;
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
 
-    /// Every (name, n_modes) that `make_env` must support.
+    /// Every (name, n_modes) built through `make_env` that the suite runs against.
     const ALL_ENVS: &[(&str, usize)] = &[("traj2d", 4), ("reacher", 2), ("reacher", 6)];
 
-    fn build(name: &str, n_modes: usize) -> Box<dyn ScriptedExpert> {
-        make_env(name, n_modes).expect("known env builds")
-    }
-
-    /// Rolls one episode with uniformly random actions; returns all observations.
-    fn rollout(env: &mut dyn ScriptedExpert, seed: u64) -> (Vec<f32>, Vec<StepOutcome>) {
-        let spec = env.spec().clone();
-        let mut obs = vec![0.0; spec.obs_dim];
-        let mut act = vec![0.0; spec.act_dim];
-        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xabcdef);
-        env.reset(seed, &mut obs).expect("reset");
-        let mut all = obs.clone();
-        let mut outcomes = Vec::new();
-        loop {
-            for a in &mut act {
-                *a = rng.random_range(-1.0..=1.0);
-            }
-            let out = env.step(&act, &mut obs).expect("step");
-            all.extend_from_slice(&obs);
-            outcomes.push(out);
-            if out.done() {
-                break;
-            }
-        }
-        (all, outcomes)
-    }
-
     #[test]
-    fn same_seed_gives_the_same_trajectory() {
+    fn every_make_env_env_passes_the_conformance_suite() {
         for &(name, k) in ALL_ENVS {
-            let (a, _) = rollout(build(name, k).as_mut(), 7);
-            let (b, _) = rollout(build(name, k).as_mut(), 7);
-            let (c, _) = rollout(build(name, k).as_mut(), 8);
-            assert_eq!(a, b, "{name}");
-            assert_ne!(a, c, "{name}: different seeds should differ");
-        }
-    }
-
-    #[test]
-    fn observations_are_finite_and_have_obs_dim() {
-        for &(name, k) in ALL_ENVS {
-            let mut env = build(name, k);
-            let spec = env.spec().clone();
-            let (all, outcomes) = rollout(env.as_mut(), 3);
-            assert_eq!(all.len(), (outcomes.len() + 1) * spec.obs_dim);
-            assert!(all.iter().all(|x| x.is_finite()), "{name}");
-            let mut r = vec![0.0; spec.n_modes];
-            env.mode_rewards(&mut r);
-            assert!(r.iter().all(|x| x.is_finite()), "{name}");
-        }
-    }
-
-    #[test]
-    fn episodes_are_truncated_at_max_steps_and_not_terminated() {
-        for &(name, k) in ALL_ENVS {
-            let mut env = build(name, k);
-            let max = env.spec().max_steps;
-            let (_, outcomes) = rollout(env.as_mut(), 11);
-            assert_eq!(outcomes.len(), max, "{name}");
-            assert!(outcomes.iter().all(|o| !o.terminated), "{name}");
-            assert!(outcomes[..max - 1].iter().all(|o| !o.truncated), "{name}");
-            assert!(outcomes[max - 1].truncated, "{name}");
-        }
-    }
-
-    #[test]
-    fn stepping_after_the_episode_ended_is_an_error() {
-        for &(name, k) in ALL_ENVS {
-            let mut env = build(name, k);
-            let spec = env.spec().clone();
-            rollout(env.as_mut(), 1);
-            let mut obs = vec![0.0; spec.obs_dim];
-            let err = env.step(&vec![0.0; spec.act_dim], &mut obs).unwrap_err();
-            assert!(
-                matches!(err, EnvError::StepAfterDone { .. }),
-                "{name}: {err}"
-            );
-            // A reset starts a fresh episode.
-            env.reset(2, &mut obs).expect("reset");
-            env.step(&vec![0.0; spec.act_dim], &mut obs)
-                .expect("step after reset");
-        }
-    }
-
-    #[test]
-    fn stepping_before_reset_is_an_error() {
-        for &(name, k) in ALL_ENVS {
-            let mut env = build(name, k);
-            let spec = env.spec().clone();
-            let mut obs = vec![0.0; spec.obs_dim];
-            let err = env.step(&vec![0.0; spec.act_dim], &mut obs).unwrap_err();
-            assert!(matches!(err, EnvError::NotReset), "{name}: {err}");
-        }
-    }
-
-    #[test]
-    fn wrong_buffer_lengths_and_non_finite_actions_are_errors() {
-        for &(name, k) in ALL_ENVS {
-            let mut env = build(name, k);
-            let spec = env.spec().clone();
-            let mut obs = vec![0.0; spec.obs_dim];
-            let err = env.reset(0, &mut vec![0.0; spec.obs_dim + 1]).unwrap_err();
-            assert!(matches!(err, EnvError::BadObsLen { .. }), "{name}: {err}");
-            env.reset(0, &mut obs).expect("reset");
-            let err = env
-                .step(&vec![0.0; spec.act_dim + 1], &mut obs)
-                .unwrap_err();
-            assert!(
-                matches!(err, EnvError::BadActionLen { expected, got } if expected == spec.act_dim && got == spec.act_dim + 1),
-                "{name}: {err}"
-            );
-            assert!(err.to_string().contains("act_dim"), "{err}");
-            let err = env
-                .step(&vec![f32::NAN; spec.act_dim], &mut obs)
-                .unwrap_err();
-            assert!(
-                matches!(err, EnvError::NonFiniteAction { index: 0, .. }),
-                "{name}: {err}"
-            );
-            let err = env
-                .step(&vec![0.0; spec.act_dim], &mut vec![0.0; spec.obs_dim + 2])
-                .unwrap_err();
-            assert!(matches!(err, EnvError::BadObsLen { .. }), "{name}: {err}");
-            // Failed steps do not consume the episode.
-            env.step(&vec![0.0; spec.act_dim], &mut obs)
-                .expect("valid step");
+            check_env(name, &|| {
+                let env: Box<dyn Env> = make_env(name, k).expect("known env builds");
+                env
+            });
         }
     }
 
     #[test]
     fn expert_rejects_an_out_of_range_mode() {
         for &(name, k) in ALL_ENVS {
-            let mut env = build(name, k);
+            let mut env = make_env(name, k).expect("env");
             let spec = env.spec().clone();
             let mut obs = vec![0.0; spec.obs_dim];
             env.reset(0, &mut obs).expect("reset");
@@ -403,7 +300,7 @@ mod tests {
     #[test]
     fn make_env_builds_reacher_with_the_requested_number_of_targets() {
         for k in 2..=12 {
-            let env = build("reacher", k);
+            let env = make_env("reacher", k).expect("reacher");
             assert_eq!(env.spec().n_modes, k);
             assert_eq!(env.spec().name, "reacher");
         }

@@ -1,0 +1,156 @@
+//! The [`Env`] conformance suite. Every environment's tests call [`check_env`] with a
+//! builder; it checks the contract the actors, demonstrations and evaluation rely on:
+//! determinism per seed, finite observations of `obs_dim`, finite rewards of `n_modes`,
+//! `terminated` vs `truncated` at `max_steps`, errors for stepping before reset or
+//! after the end, and errors (not panics) for bad buffers and non-finite actions.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::env::{Env, EnvError, StepOutcome};
+
+/// Builds a fresh env for one check.
+pub(crate) type Build<'a> = &'a dyn Fn() -> Box<dyn Env>;
+
+/// Rolls one episode with uniformly random actions; returns all observations (the
+/// reset one first) and every step's outcome.
+pub(crate) fn random_rollout(env: &mut dyn Env, seed: u64) -> (Vec<f32>, Vec<StepOutcome>) {
+    let spec = env.spec().clone();
+    let mut obs = vec![0.0; spec.obs_dim];
+    let mut act = vec![0.0; spec.act_dim];
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xabcdef);
+    env.reset(seed, &mut obs).expect("reset");
+    let mut all = obs.clone();
+    let mut outcomes = Vec::new();
+    loop {
+        for a in &mut act {
+            *a = rng.random_range(-1.0..=1.0);
+        }
+        let out = env.step(&act, &mut obs).expect("step");
+        all.extend_from_slice(&obs);
+        outcomes.push(out);
+        if out.done() {
+            break;
+        }
+    }
+    (all, outcomes)
+}
+
+/// Runs every check of the suite on envs from `build`; `name` labels failures.
+pub(crate) fn check_env(name: &str, build: Build) {
+    same_seed_gives_the_same_trajectory(name, build);
+    observations_and_rewards_are_finite(name, build);
+    episodes_end_terminated_or_truncated_at_max_steps(name, build);
+    stepping_after_the_episode_ended_is_an_error(name, build);
+    stepping_before_reset_is_an_error(name, build);
+    wrong_buffer_lengths_and_non_finite_actions_are_errors(name, build);
+}
+
+fn same_seed_gives_the_same_trajectory(name: &str, build: Build) {
+    let (a, _) = random_rollout(build().as_mut(), 7);
+    let (b, _) = random_rollout(build().as_mut(), 7);
+    let (c, _) = random_rollout(build().as_mut(), 8);
+    assert_eq!(a, b, "{name}: same seed, different trajectory");
+    assert_ne!(a, c, "{name}: different seeds should differ");
+    // Reusing one env gives the same as a fresh one.
+    let mut env = build();
+    random_rollout(env.as_mut(), 3);
+    let (d, _) = random_rollout(env.as_mut(), 7);
+    assert_eq!(a, d, "{name}: a reset does not fully restart the episode");
+}
+
+fn observations_and_rewards_are_finite(name: &str, build: Build) {
+    let mut env = build();
+    let spec = env.spec().clone();
+    for seed in 0..3 {
+        let (all, outcomes) = random_rollout(env.as_mut(), seed);
+        assert_eq!(all.len(), (outcomes.len() + 1) * spec.obs_dim, "{name}");
+        assert!(all.iter().all(|x| x.is_finite()), "{name}: non-finite obs");
+        let mut r = vec![f32::NAN; spec.n_modes];
+        env.mode_rewards(&mut r);
+        assert!(r.iter().all(|x| x.is_finite()), "{name}: {r:?}");
+        let mut t = vec![f32::NAN; spec.n_modes];
+        env.task_rewards(&mut t);
+        assert!(t.iter().all(|x| x.is_finite()), "{name}: {t:?}");
+        if let Some(v) = env.forward_velocity() {
+            assert!(v.is_finite(), "{name}: forward velocity {v}");
+        }
+    }
+}
+
+fn episodes_end_terminated_or_truncated_at_max_steps(name: &str, build: Build) {
+    let mut env = build();
+    let max = env.spec().max_steps;
+    for seed in [11, 12, 13] {
+        let (_, outcomes) = random_rollout(env.as_mut(), seed);
+        let n = outcomes.len();
+        assert!(n >= 1 && n <= max, "{name}: {n} steps, max_steps {max}");
+        assert!(
+            outcomes[..n - 1].iter().all(|o| !o.done()),
+            "{name}: a step before the last reported done"
+        );
+        let last = outcomes[n - 1];
+        assert!(
+            last.terminated != last.truncated,
+            "{name}: the last step must be exactly one of terminated / truncated: {last:?}"
+        );
+        if last.truncated {
+            assert_eq!(n, max, "{name}: truncated before max_steps");
+        }
+    }
+}
+
+fn stepping_after_the_episode_ended_is_an_error(name: &str, build: Build) {
+    let mut env = build();
+    let spec = env.spec().clone();
+    random_rollout(env.as_mut(), 1);
+    let mut obs = vec![0.0; spec.obs_dim];
+    let err = env.step(&vec![0.0; spec.act_dim], &mut obs).unwrap_err();
+    assert!(
+        matches!(err, EnvError::StepAfterDone { .. }),
+        "{name}: {err}"
+    );
+    // A reset starts a fresh episode.
+    env.reset(2, &mut obs).expect("reset");
+    env.step(&vec![0.0; spec.act_dim], &mut obs)
+        .expect("step after reset");
+}
+
+fn stepping_before_reset_is_an_error(name: &str, build: Build) {
+    let mut env = build();
+    let spec = env.spec().clone();
+    let mut obs = vec![0.0; spec.obs_dim];
+    let err = env.step(&vec![0.0; spec.act_dim], &mut obs).unwrap_err();
+    assert!(matches!(err, EnvError::NotReset), "{name}: {err}");
+}
+
+fn wrong_buffer_lengths_and_non_finite_actions_are_errors(name: &str, build: Build) {
+    let mut env = build();
+    let spec = env.spec().clone();
+    let mut obs = vec![0.0; spec.obs_dim];
+    let err = env.reset(0, &mut vec![0.0; spec.obs_dim + 1]).unwrap_err();
+    assert!(matches!(err, EnvError::BadObsLen { .. }), "{name}: {err}");
+    env.reset(0, &mut obs).expect("reset");
+    let err = env
+        .step(&vec![0.0; spec.act_dim + 1], &mut obs)
+        .unwrap_err();
+    assert!(
+        matches!(err, EnvError::BadActionLen { expected, got } if expected == spec.act_dim && got == spec.act_dim + 1),
+        "{name}: {err}"
+    );
+    assert!(err.to_string().contains("act_dim"), "{err}");
+    let err = env
+        .step(&vec![f32::NAN; spec.act_dim], &mut obs)
+        .unwrap_err();
+    assert!(
+        matches!(err, EnvError::NonFiniteAction { index: 0, .. }),
+        "{name}: {err}"
+    );
+    let err = env
+        .step(&vec![0.0; spec.act_dim], &mut vec![0.0; spec.obs_dim + 2])
+        .unwrap_err();
+    assert!(matches!(err, EnvError::BadObsLen { .. }), "{name}: {err}");
+    // Failed steps do not consume the episode.
+    env.step(&vec![0.0; spec.act_dim], &mut obs)
+        .expect("valid step");
+}
