@@ -1,16 +1,15 @@
 //! `ess-actor`: the acting side of Ess.
 //!
 //! Actors step environments under sampled latents `(c, eps)` with a pure-Rust forward
-//! pass of the policy (no libtorch here: see [`mlp`]), and hand the learner chunks of
+//! pass of the policy (no libtorch here: see [`ess_proto::mlp`]), and hand the learner chunks of
 //! transitions through a [`transport::RolloutSource`]. Evaluation episodes with a given
 //! one-hot code run here too ([`rollout::eval_episode`]).
 
-pub mod mlp;
 pub mod policy;
 pub mod rollout;
 pub mod transport;
 
-pub use mlp::Mlp;
+pub use ess_proto::Mlp;
 pub use policy::{Actor, LatentSpec, PolicyWeights, gumbel_softmax};
 pub use rollout::{ActorError, EvalEpisode, Worker, eval_episode};
 pub use transport::{RolloutSource, ThreadedActors, split_steps};

@@ -8,7 +8,7 @@
 //! - Acting samples `u ~ N(mean, exp(log_std))` and sends `a = tanh(u)`; the chunk keeps
 //!   `u` and its Gaussian log-density (the tanh Jacobian cancels in PPO's ratio).
 
-use crate::mlp::Mlp;
+use ess_proto::Mlp;
 use ess_proto::config::LatentPrior;
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};

@@ -83,6 +83,9 @@ pub struct Worker {
     pre: Vec<f32>,
     act: Vec<f32>,
     in_episode: bool,
+    /// Mode whose task reward goes into `Chunk::env_reward` (expert training), if any.
+    task_mode: Option<usize>,
+    task_rewards: Vec<f32>,
 }
 
 impl Worker {
@@ -100,7 +103,21 @@ impl Worker {
             pre: vec![0.0; s.act_dim],
             act: vec![0.0; s.act_dim],
             in_episode: false,
+            task_mode: None,
+            task_rewards: vec![0.0; s.n_modes],
         }
+    }
+
+    /// Records the task reward of `mode` ([`Env::task_rewards`]) as each step's
+    /// `env_reward` (expert training); without it `env_reward` is 0. A mode out of range
+    /// is [`EnvError::ModeOutOfRange`].
+    pub fn with_task_reward(mut self, mode: usize) -> Result<Self, ActorError> {
+        let n_modes = self.env.spec().n_modes;
+        if mode >= n_modes {
+            return Err(EnvError::ModeOutOfRange { mode, n_modes }.into());
+        }
+        self.task_mode = Some(mode);
+        Ok(self)
     }
 
     /// The environment.
@@ -153,7 +170,14 @@ impl Worker {
             chunk.eps.push(self.eps);
             chunk.terminated.push(out.terminated);
             chunk.truncated.push(out.truncated);
-            chunk.env_reward.push(0.0);
+            let r = match self.task_mode {
+                Some(k) => {
+                    self.env.task_rewards(&mut self.task_rewards);
+                    self.task_rewards[k]
+                }
+                None => 0.0,
+            };
+            chunk.env_reward.push(r);
             std::mem::swap(&mut self.obs, &mut self.next);
             if out.terminated || out.truncated {
                 self.in_episode = false;

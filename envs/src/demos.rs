@@ -35,7 +35,6 @@
 //! tensor, row, field or value (and the file) in its error.
 
 use std::collections::{BTreeSet, HashMap};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use rand::seq::SliceRandom;
@@ -645,29 +644,8 @@ impl Demos {
     /// is written, synced and renamed over `path`, so no half-written file is ever seen.
     pub fn save(&self, path: &Path) -> Result<(), DemoError> {
         let bytes = self.to_bytes(path)?;
-        let io_err = |p: &Path| {
-            let p = p.to_owned();
-            move |source| DemoError::Io { path: p, source }
-        };
-        let file_name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "demos".to_owned());
-        let tmp = path.with_file_name(format!(".{file_name}.tmp-{}", std::process::id()));
-        let write = || -> std::io::Result<()> {
-            let mut f = std::fs::File::create(&tmp)?;
-            f.write_all(&bytes)?;
-            f.sync_all()
-        };
-        if let Err(e) = write() {
-            // Best effort: the temporary file is garbage now.
-            let _ = std::fs::remove_file(&tmp);
-            return Err(io_err(&tmp)(e));
-        }
-        if let Err(e) = std::fs::rename(&tmp, path) {
-            let _ = std::fs::remove_file(&tmp);
-            return Err(io_err(path)(e));
-        }
+        crate::write_atomic(path, &bytes)
+            .map_err(|(path, source)| DemoError::Io { path, source })?;
         tracing::debug!(path = %path.display(), bytes = bytes.len(), "saved demonstrations");
         Ok(())
     }

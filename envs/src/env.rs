@@ -202,6 +202,13 @@ pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, E
     }
 }
 
+/// Builds any known env by name as a plain [`Env`] (no expert): what expert training
+/// and the actors need. Same `n_modes` rules and errors as [`make_env`].
+pub fn make_plain_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
+    let env: Box<dyn Env> = make_env(name, n_modes)?;
+    Ok(env)
+}
+
 /// Checks that `buf` has length `expected`, as an observation buffer.
 pub(crate) fn check_obs_len(buf: &[f32], expected: usize) -> Result<(), EnvError> {
     if buf.len() == expected {

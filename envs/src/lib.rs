@@ -7,6 +7,8 @@
 //!   behaviour modes through the origin.
 //! - [`reacher`]: the multi-target Reacher task (Sec. 4, "Task setup (2)") on MuJoCo:
 //!   a two-link arm, one hidden target per behaviour mode.
+//! - [`expert`]: trained expert policies (one per mode), their file format, and
+//!   [`ExpertEnv`], which drives any env with them for demonstrations.
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
@@ -15,12 +17,44 @@
 
 pub mod demos;
 pub mod env;
+pub mod expert;
 pub mod reacher;
 pub mod traj2d;
 
 pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
-pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env};
+pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_plain_env};
+pub use expert::{ExpertEnv, ExpertError, ExpertMeta, ExpertPolicy, expert_path, experts_dir};
 pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};
+
+/// Writes `bytes` to `path` atomically: a temporary file in the same directory is
+/// written, synced and renamed over `path`, so no half-written file is ever seen. On
+/// error, returns the path the failing operation touched with the I/O error.
+pub fn write_atomic(
+    path: &std::path::Path,
+    bytes: &[u8],
+) -> Result<(), (std::path::PathBuf, std::io::Error)> {
+    use std::io::Write;
+    let file_name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "file".to_owned());
+    let tmp = path.with_file_name(format!(".{file_name}.tmp-{}", std::process::id()));
+    let write = || -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()
+    };
+    if let Err(e) = write() {
+        // Best effort: the temporary file is garbage now.
+        let _ = std::fs::remove_file(&tmp);
+        return Err((tmp, e));
+    }
+    if let Err(e) = std::fs::rename(&tmp, path) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err((path.to_owned(), e));
+    }
+    Ok(())
+}

@@ -3,6 +3,7 @@
 //! - [`nets`]: tch networks (policy, value, discriminator body with D / Q_c / Q_eps heads).
 //! - [`objective`]: every objective term, one file each, headed by its equation.
 //! - [`ppo`]: PPO with GAE, including the p(c) update through Gumbel-softmax.
+//! - [`experts`]: PPO experts on each mode's task reward, and their evaluation.
 //! - [`train`]: Algorithm 1 for all seven methods (presets in `deploy/presets/`).
 //! - [`classifier`], [`eval`], [`metrics`]: the paper's evaluation (NMI, ENT, normalised
 //!   task reward).
@@ -11,6 +12,7 @@
 
 pub mod classifier;
 pub mod eval;
+pub mod experts;
 pub mod metrics;
 pub mod nets;
 pub mod objective;

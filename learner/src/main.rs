@@ -8,7 +8,8 @@
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use ess_envs::generate_demos;
-use ess_learner::presets::{PRESETS, preset};
+use ess_learner::experts::{ExpertTrainConfig, eval_experts, train_expert};
+use ess_learner::presets::{self, PRESETS, preset};
 use ess_learner::train::{IterationLog, Progress, demo_spec, run};
 use ess_proto::config::{CheckedConfig, ConfigBuilder};
 use std::io::IsTerminal;
@@ -36,8 +37,51 @@ enum Cmd {
         #[command(subcommand)]
         cmd: DemosCmd,
     },
+    /// Per-mode expert policies (PPO on each mode's task reward).
+    Experts {
+        #[command(subcommand)]
+        cmd: ExpertsCmd,
+    },
     /// List the method presets.
     Presets,
+}
+
+#[derive(Subcommand)]
+enum ExpertsCmd {
+    /// Train one mode's expert with PPO on that mode's task reward (uses the `ppo` and
+    /// `run` config sections: rollout_steps, actors, torch_threads, seed).
+    Train {
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// Behaviour mode (0-based).
+        #[arg(long)]
+        mode: usize,
+        /// Total env steps (a resumed run counts its earlier steps).
+        #[arg(long, default_value_t = 1_000_000)]
+        steps: u64,
+        /// Expert file (default: deploy/experts/<env>/mode<k>.safetensors, or under
+        /// ESS_EXPERTS_DIR).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Continue training the expert at --out from its saved state.
+        #[arg(long)]
+        resume: bool,
+    },
+    /// Each mode's expert against uniformly random actions on its task reward.
+    Eval {
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// Directory of `<env>/mode<k>.safetensors` (default: deploy/experts or
+        /// ESS_EXPERTS_DIR).
+        #[arg(long)]
+        dir: Option<PathBuf>,
+        /// Episodes per mode and policy.
+        #[arg(long, default_value_t = 10)]
+        episodes: usize,
+        /// Print JSON instead of a Markdown table.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Args)]
@@ -103,7 +147,23 @@ fn input_err(e: impl std::fmt::Display) -> anyhow::Error {
 }
 
 fn resolve(args: &ConfigArgs) -> Result<CheckedConfig> {
+    // First pass: learn which env the layers select; second pass: put that env's
+    // defaults (mode count, label ratio) under the preset, the file and `--set`.
+    let first = resolve_with(args, None)?;
+    let cfg = match presets::env_defaults(&first.env.name) {
+        Some(layer) => resolve_with(args, Some((&first.env.name, layer)))?,
+        None => first,
+    };
+    ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
+    Ok(cfg)
+}
+
+fn resolve_with(args: &ConfigArgs, env_layer: Option<(&str, &str)>) -> Result<CheckedConfig> {
     let mut b = ConfigBuilder::new();
+    if let Some((env, text)) = env_layer {
+        b.merge_toml(&format!("env defaults {env}"), text)
+            .map_err(input_err)?;
+    }
     let (name, text) = if args.preset.ends_with(".toml") || args.preset.contains('/') {
         let text = std::fs::read_to_string(&args.preset)
             .map_err(|e| input_err(format!("cannot read preset file {}: {e}", args.preset)))?;
@@ -130,9 +190,7 @@ fn resolve(args: &ConfigArgs) -> Result<CheckedConfig> {
     if let Some(seed) = args.seed {
         b.set(&format!("run.seed={seed}")).map_err(input_err)?;
     }
-    let cfg = b.build().map_err(input_err)?;
-    ess_envs::make_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
-    Ok(cfg)
+    b.build().map_err(input_err)
 }
 
 struct CliProgress {
@@ -212,15 +270,7 @@ fn train(args: TrainArgs) -> Result<()> {
             cfg.method.name, cfg.env.name, cfg.run.seed
         ))
     });
-    let shutdown = Arc::new(AtomicBool::new(false));
-    let flag = shutdown.clone();
-    ctrlc::set_handler(move || {
-        if flag.swap(true, Ordering::SeqCst) {
-            std::process::exit(130);
-        }
-        eprintln!("ess: stopping after this iteration (Ctrl-C again to abort)");
-    })
-    .context("installing the Ctrl-C handler")?;
+    let shutdown = ctrl_c_flag()?;
     eprintln!(
         "ess: training {} on {} (seed {}, {} iterations x {} steps) -> {}",
         cfg.method.name,
@@ -287,6 +337,142 @@ fn train(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
+/// A flag set by the first Ctrl-C (finish the iteration, save, stop); a second exits.
+fn ctrl_c_flag() -> Result<Arc<AtomicBool>> {
+    let shutdown = Arc::new(AtomicBool::new(false));
+    let flag = shutdown.clone();
+    ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+        eprintln!("ess: stopping after this iteration (Ctrl-C again to abort)");
+    })
+    .context("installing the Ctrl-C handler")?;
+    Ok(shutdown)
+}
+
+fn experts(cmd: ExpertsCmd) -> Result<()> {
+    match cmd {
+        ExpertsCmd::Train {
+            config,
+            mode,
+            steps,
+            out,
+            resume,
+        } => {
+            let cfg = resolve(&config)?;
+            if mode >= cfg.env.n_modes {
+                return Err(input_err(format!(
+                    "--mode {mode} is out of range: env {} has {} modes (0..{})",
+                    cfg.env.name,
+                    cfg.env.n_modes,
+                    cfg.env.n_modes - 1
+                )));
+            }
+            let out = out.unwrap_or_else(|| {
+                ess_envs::expert_path(&ess_envs::experts_dir(), &cfg.env.name, mode)
+            });
+            if resume && !out.exists() {
+                return Err(input_err(format!(
+                    "--resume: no expert file at {}",
+                    out.display()
+                )));
+            }
+            let tc = ExpertTrainConfig {
+                env: cfg.env.name.clone(),
+                n_modes: cfg.env.n_modes,
+                mode,
+                steps,
+                rollout_steps: cfg.run.rollout_steps,
+                actors: cfg.run.actors,
+                torch_threads: cfg.run.torch_threads.max(1),
+                seed: cfg.run.seed,
+                ppo: cfg.ppo.clone(),
+                out: out.clone(),
+                resume,
+            };
+            let shutdown = ctrl_c_flag()?;
+            eprintln!(
+                "ess: training the {} mode-{mode} expert for {steps} steps -> {}",
+                tc.env,
+                out.display()
+            );
+            let t0 = std::time::Instant::now();
+            let mut last = 0.0;
+            let e = train_expert(
+                &tc,
+                &mut |it| {
+                    let now = t0.elapsed().as_secs_f64();
+                    if now - last >= 5.0 || it.env_steps >= steps {
+                        last = now;
+                        eprintln!(
+                            "iter {:5} {:9} steps {:7.1}s  return {:>10}  length {:>6}  entropy {:.3}",
+                            it.iteration,
+                            it.env_steps,
+                            now,
+                            it.mean_return
+                                .map(|v| format!("{v:.2}"))
+                                .unwrap_or_default(),
+                            it.mean_length
+                                .map(|v| format!("{v:.0}"))
+                                .unwrap_or_default(),
+                            it.entropy
+                        );
+                    }
+                },
+                &shutdown,
+            )?;
+            println!(
+                "expert {} mode {}: {} steps, mean return of the last episodes {:.3} -> {}",
+                e.meta.env,
+                e.meta.mode,
+                e.meta.trained_steps,
+                e.meta.mean_return,
+                out.display()
+            );
+        }
+        ExpertsCmd::Eval {
+            config,
+            dir,
+            episodes,
+            json,
+        } => {
+            let cfg = resolve(&config)?;
+            let dir = dir.unwrap_or_else(ess_envs::experts_dir);
+            let plain =
+                ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
+            let env = ess_envs::ExpertEnv::load(plain, &dir).map_err(input_err)?;
+            let experts = env.experts().to_vec();
+            let mut plain =
+                ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
+            let rows = eval_experts(plain.as_mut(), &experts, episodes, cfg.run.seed)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                println!(
+                    "| {} mode | expert return | random return | expert ep. length | fwd vel. expert | fwd vel. random | trained steps |",
+                    cfg.env.name
+                );
+                println!("|---|---|---|---|---|---|---|");
+                let v = |x: Option<f64>| x.map(|v| format!("{v:+.2} m/s")).unwrap_or("-".into());
+                for (r, e) in rows.iter().zip(&experts) {
+                    println!(
+                        "| {} | {:.2} | {:.2} | {:.0} | {} | {} | {} |",
+                        r.mode,
+                        r.expert_return,
+                        r.random_return,
+                        r.expert_length,
+                        v(r.forward_velocity),
+                        v(r.random_forward_velocity),
+                        e.meta.trained_steps
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 fn demos(cmd: DemosCmd) -> Result<()> {
     match cmd {
         DemosCmd::Generate { config, out } => {
@@ -316,6 +502,7 @@ fn main() {
     let r = match cli.cmd {
         Cmd::Train(a) => train(a),
         Cmd::Demos { cmd } => demos(cmd),
+        Cmd::Experts { cmd } => experts(cmd),
         Cmd::Presets => {
             for (name, text) in PRESETS {
                 let doc = text

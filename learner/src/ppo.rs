@@ -8,6 +8,7 @@
 //! skill distribution").
 
 use crate::nets::{Mlp, Policy, tensor_2d};
+use ess_proto::Chunk;
 use ess_proto::config::{LatentPrior, PpoConfig};
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -42,6 +43,103 @@ pub fn gae(
         next_adv = adv[t];
     }
     let ret = adv.iter().zip(values).map(|(a, v)| a + v).collect();
+    (adv, ret)
+}
+
+/// Scales rewards by the running standard deviation of the discounted return, per
+/// actor stream (each stream's return carries across iterations until its episode
+/// ends). Rewards are scaled, never shifted, so the sign of every term is kept.
+#[derive(Debug, Clone, Default)]
+pub struct RewardScaler {
+    /// Running discounted return of each stream.
+    ret: Vec<f64>,
+    count: f64,
+    mean: f64,
+    m2: f64,
+}
+
+impl RewardScaler {
+    /// Updates the statistics with one stream's consecutive `rewards` (an episode
+    /// ends where `done`); divide rewards by [`RewardScaler::std`] afterwards.
+    pub fn observe(&mut self, stream: usize, rewards: &[f32], done: &[bool], gamma: f64) {
+        if self.ret.len() <= stream {
+            self.ret.resize(stream + 1, 0.0);
+        }
+        let mut g = self.ret[stream];
+        for (&r, &d) in rewards.iter().zip(done) {
+            g = g * gamma + r as f64;
+            self.count += 1.0;
+            let delta = g - self.mean;
+            self.mean += delta / self.count;
+            self.m2 += delta * (g - self.mean);
+            if d {
+                g = 0.0;
+            }
+        }
+        self.ret[stream] = g;
+    }
+
+    /// Observes `rewards` (all `chunks` concatenated, one stream per chunk index) and
+    /// returns them divided by the updated return standard deviation.
+    pub fn scale_chunks(&mut self, chunks: &[Chunk], rewards: &[f32], gamma: f64) -> Vec<f32> {
+        let mut off = 0;
+        for (i, c) in chunks.iter().enumerate() {
+            let done: Vec<bool> = c
+                .terminated
+                .iter()
+                .zip(&c.truncated)
+                .map(|(a, b)| *a || *b)
+                .collect();
+            self.observe(i, &rewards[off..off + c.len()], &done, gamma);
+            off += c.len();
+        }
+        let s = self.std() as f32;
+        rewards.iter().map(|r| r / s).collect()
+    }
+
+    /// Standard deviation of the discounted return seen so far (1 before any data).
+    pub fn std(&self) -> f64 {
+        if self.count < 2.0 {
+            1.0
+        } else {
+            (self.m2 / self.count).sqrt().max(1e-4)
+        }
+    }
+}
+
+/// [`gae`] over each chunk's steps of the concatenated `rewards` / `values` /
+/// `next_values` (a chunk's last step is cut: it bootstraps). Returns the
+/// concatenated `(advantages, returns)`.
+pub fn chunks_gae(
+    chunks: &[Chunk],
+    rewards: &[f32],
+    values: &[f32],
+    next_values: &[f32],
+    gamma: f64,
+    lambda: f64,
+) -> (Vec<f32>, Vec<f32>) {
+    let mut adv = Vec::with_capacity(rewards.len());
+    let mut ret = Vec::with_capacity(rewards.len());
+    let mut off = 0;
+    for c in chunks {
+        let r = off..off + c.len();
+        let mut cut = c.truncated.clone();
+        if let Some(l) = cut.last_mut() {
+            *l = true;
+        }
+        let (a, rt) = gae(
+            &rewards[r.clone()],
+            &values[r.clone()],
+            &next_values[r],
+            &c.terminated,
+            &cut,
+            gamma as f32,
+            lambda as f32,
+        );
+        adv.extend(a);
+        ret.extend(rt);
+        off += c.len();
+    }
     (adv, ret)
 }
 

@@ -27,6 +27,25 @@ pub const PRESETS: &[(&str, &str)] = &[
     ),
 ];
 
+/// `(env, toml)`: per-environment defaults (`deploy/envs/*.toml`): mode count and the
+/// paper's label ratio. They apply over the built-in defaults and under the method
+/// preset, the config file and `--set`.
+pub const ENV_DEFAULTS: &[(&str, &str)] = &[
+    ("traj2d", include_str!("../../deploy/envs/traj2d.toml")),
+    ("reacher", include_str!("../../deploy/envs/reacher.toml")),
+    ("pusher", include_str!("../../deploy/envs/pusher.toml")),
+    ("walker2d", include_str!("../../deploy/envs/walker2d.toml")),
+    ("humanoid", include_str!("../../deploy/envs/humanoid.toml")),
+];
+
+/// The defaults layer of `env`, if it has one.
+pub fn env_defaults(env: &str) -> Option<&'static str> {
+    ENV_DEFAULTS
+        .iter()
+        .find(|(n, _)| *n == env)
+        .map(|(_, t)| *t)
+}
+
 /// The TOML of preset `name`, or an error listing the known ones.
 pub fn preset(name: &str) -> Result<&'static str, String> {
     PRESETS

@@ -17,7 +17,7 @@ use crate::objective::{
     reward::{RewardWeights, disc_term, policy_reward},
     rim::rim,
 };
-use crate::ppo::{PpoBatch, PpoLearner, PpoStats, column, gae};
+use crate::ppo::{PpoBatch, PpoLearner, PpoStats, chunks_gae, column};
 use anyhow::{Context, Result, bail};
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::{DemoSpec, Demos, generate_demos, make_env};
@@ -335,6 +335,7 @@ pub fn run(
     let mut iters_done = 0;
     let mut interrupted = false;
     let mut curve: Vec<crate::report::CurvePoint> = Vec::new();
+    let mut scaler = crate::ppo::RewardScaler::default();
     for it in 1..=cfg.run.iterations {
         if shutdown.load(Ordering::Relaxed) {
             interrupted = true;
@@ -513,29 +514,19 @@ pub fn run(
             .collect();
         log.reward_mean =
             rewards.iter().map(|&r| r as f64).sum::<f64>() / rewards.len().max(1) as f64;
-        let mut adv = Vec::with_capacity(all.len());
-        let mut ret = Vec::with_capacity(all.len());
-        let mut off = 0;
-        for c in &chunks {
-            let n = c.len();
-            let r = off..off + n;
-            let mut cut = c.truncated.clone();
-            if let Some(l) = cut.last_mut() {
-                *l = true;
-            }
-            let (a, rt) = gae(
-                &rewards[r.clone()],
-                &values[r.clone()],
-                &next_values[r.clone()],
-                &c.terminated,
-                &cut,
-                cfg.ppo.gamma as f32,
-                cfg.ppo.gae_lambda as f32,
-            );
-            adv.extend(a);
-            ret.extend(rt);
-            off += n;
-        }
+        let rewards = if cfg.ppo.normalize_rewards {
+            scaler.scale_chunks(&chunks, &rewards, cfg.ppo.gamma)
+        } else {
+            rewards
+        };
+        let (adv, ret) = chunks_gae(
+            &chunks,
+            &rewards,
+            &values,
+            &next_values,
+            cfg.ppo.gamma,
+            cfg.ppo.gae_lambda,
+        );
         let batch = PpoBatch {
             obs: obs_n,
             eps: eps_col,

@@ -264,6 +264,10 @@ pub struct PpoConfig {
     pub max_grad_norm: f64,
     /// Initial state-independent log standard deviation of the Gaussian.
     pub log_std_init: f64,
+    /// Divide rewards by the running standard deviation of the discounted return
+    /// before GAE (as common PPO implementations do), so the value targets stay near
+    /// unit scale whatever the reward's scale (e.g. D logits of -20 on Reacher).
+    pub normalize_rewards: bool,
 }
 
 impl Default for PpoConfig {
@@ -281,6 +285,7 @@ impl Default for PpoConfig {
             value_coef: 0.5,
             max_grad_norm: 0.5,
             log_std_init: -0.5,
+            normalize_rewards: true,
         }
     }
 }

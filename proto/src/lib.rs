@@ -5,14 +5,17 @@
 //!   [`config::CheckedConfig`]. Defaults state the paper's values.
 //! - [`weights`]: the flat `f32` layout of an MLP's parameters, shared by the learner
 //!   (which exports them) and the actors (which run the pure-Rust forward pass).
+//! - [`mlp`]: the pure-Rust forward pass over such weights.
 //! - [`chunk`]: the transition chunk an actor hands the learner.
 //!
 //! This crate depends on nothing internal and never on tch or MuJoCo.
 
 pub mod chunk;
 pub mod config;
+pub mod mlp;
 pub mod weights;
 
 pub use chunk::Chunk;
 pub use config::{CheckedConfig, ConfigError, TrainConfig};
+pub use mlp::Mlp;
 pub use weights::{MlpLayout, WeightsError};

@@ -2,9 +2,11 @@
 //!
 //! Actors never link libtorch: the policy is small, and a plain loop over the weights
 //! (as the learner exports them, `torch.nn.Linear` layout) has no per-call overhead.
-//! The learner's tests hold this forward equal to the tch one within 1e-5.
+//! The learner's tests hold this forward equal to the tch one within 1e-5. It lives
+//! here, beside [`MlpLayout`], because both the actors (imitation policy) and `envs`
+//! (trained expert policies that generate demonstrations) evaluate such weights.
 
-use ess_proto::{MlpLayout, WeightsError};
+use crate::weights::{MlpLayout, WeightsError};
 
 /// A tanh MLP with its flat parameters.
 #[derive(Debug, Clone, PartialEq)]

@@ -1,0 +1,680 @@
+//! Trained expert policies and the envs they drive (paper Sec. 4, "Multi-modal
+//! demonstrations preparation": "we first pre-train K expert policies, each
+//! corresponding to K different goals").
+//!
+//! An [`ExpertPolicy`] is one behaviour mode's PPO policy as `ess experts train` saves
+//! it: a tanh MLP for the Gaussian mean (evaluated with the pure-Rust
+//! [`ess_proto::Mlp`]), a state-independent log standard deviation, and the
+//! observation normalisation it was trained with. Actions are `tanh(mean + std * n)`,
+//! `n ~ N(0, I)` (or `tanh(mean)` deterministically), exactly how it acted in training.
+//!
+//! ## File format (`format = "ess-expert"`, version 1)
+//! A safetensors file with `f32` tensors `params` (the flat MLP parameters in
+//! [`ess_proto::MlpLayout`] order), `log_std` `[act_dim]`, `obs_mean` and `obs_std`
+//! `[obs_dim]`, and a JSON [`ExpertMeta`] under the header key `meta`: env name, mode,
+//! mode count, dims, layer sizes, how many zero inputs follow the observation (the
+//! trainer's unused eps/code slots), training steps and the final mean return.
+//! [`ExpertPolicy::load`] validates all of it and names the file and field on error;
+//! [`ExpertPolicy::check_fits`] refuses an expert of another env, mode or shape.
+//!
+//! ## Where experts live
+//! `deploy/experts/<env>/mode<k>.safetensors` in the repository (small files, shipped so
+//! demonstrations regenerate deterministically without retraining); the
+//! `ESS_EXPERTS_DIR` environment variable points elsewhere ([`experts_dir`]).
+//!
+//! [`ExpertEnv`] wraps any [`Env`] with one expert per mode and so implements
+//! [`ScriptedExpert`]: demonstrations, the behaviour classifier and the expert returns
+//! of the evaluation come from it exactly as from a scripted expert.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use ess_proto::{Mlp, MlpLayout};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde::{Deserialize, Serialize};
+
+use crate::env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome};
+
+/// Value of the `format` header key.
+pub const FORMAT: &str = "ess-expert";
+/// The only supported `format_version`.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// What an expert file says about itself.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExpertMeta {
+    /// Environment name (as `make_env` takes it).
+    pub env: String,
+    /// Behaviour mode the expert was trained for.
+    pub mode: usize,
+    /// Number of modes of the env it was trained in.
+    pub n_modes: usize,
+    /// Observation length.
+    pub obs_dim: usize,
+    /// Action length.
+    pub act_dim: usize,
+    /// Layer widths of the mean MLP, input first.
+    pub sizes: Vec<usize>,
+    /// Zero inputs appended after the normalised observation.
+    pub extra_inputs: usize,
+    /// Env steps the expert was trained for.
+    pub trained_steps: u64,
+    /// Mean task return of its last training episodes.
+    pub mean_return: f64,
+    /// What wrote the file.
+    pub generator: String,
+}
+
+/// Errors of expert files.
+#[derive(Debug, thiserror::Error)]
+pub enum ExpertError {
+    /// Reading or writing failed.
+    #[error("{path}: I/O error: {source}")]
+    Io {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// No expert file where one was looked for.
+    #[error(
+        "no expert for env {env:?} mode {mode} at {path}; train one with `ess experts train --env {env} --mode {mode}` or set ESS_EXPERTS_DIR"
+    )]
+    Missing {
+        /// Env name.
+        env: String,
+        /// Mode.
+        mode: usize,
+        /// Where it was looked for.
+        path: PathBuf,
+    },
+    /// The file is not a valid expert file.
+    #[error("{path}: invalid expert file: {reason}")]
+    Invalid {
+        /// File.
+        path: PathBuf,
+        /// What is wrong (names the key, tensor or field).
+        reason: String,
+    },
+    /// The expert was trained for another env, mode or shape.
+    #[error("{path}: expert does not fit: {reason}")]
+    Mismatch {
+        /// File.
+        path: PathBuf,
+        /// Which field differs, with both values.
+        reason: String,
+    },
+    /// Environment error while driving the expert.
+    #[error(transparent)]
+    Env(#[from] EnvError),
+}
+
+/// One mode's trained policy; see the module docs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExpertPolicy {
+    /// What the file says about itself.
+    pub meta: ExpertMeta,
+    mean: Mlp,
+    log_std: Vec<f32>,
+    obs_mean: Vec<f32>,
+    obs_std: Vec<f32>,
+}
+
+/// Reusable buffers for [`ExpertPolicy::act`].
+#[derive(Debug, Clone, Default)]
+pub struct ExpertScratch {
+    input: Vec<f32>,
+    out: Vec<f32>,
+    scratch: Vec<f32>,
+}
+
+impl ExpertPolicy {
+    /// Builds an expert from its parts, checking every length against `meta`.
+    pub fn new(
+        meta: ExpertMeta,
+        params: Vec<f32>,
+        log_std: Vec<f32>,
+        obs_mean: Vec<f32>,
+        obs_std: Vec<f32>,
+    ) -> Result<Self, String> {
+        if meta.sizes.len() < 2 {
+            return Err(format!(
+                "meta.sizes = {:?}: needs input and output",
+                meta.sizes
+            ));
+        }
+        if meta.sizes[0] != meta.obs_dim + meta.extra_inputs {
+            return Err(format!(
+                "meta.sizes[0] = {} but obs_dim + extra_inputs = {}",
+                meta.sizes[0],
+                meta.obs_dim + meta.extra_inputs
+            ));
+        }
+        if meta.sizes.last() != Some(&meta.act_dim) {
+            return Err(format!(
+                "meta.sizes ends in {:?} but act_dim = {}",
+                meta.sizes.last(),
+                meta.act_dim
+            ));
+        }
+        if meta.mode >= meta.n_modes {
+            return Err(format!(
+                "meta.mode = {} is not below meta.n_modes = {}",
+                meta.mode, meta.n_modes
+            ));
+        }
+        let layout = MlpLayout {
+            sizes: meta.sizes.clone(),
+        };
+        let mean = Mlp::new(layout, params).map_err(|e| format!("tensor \"params\": {e}"))?;
+        for (name, v, n) in [
+            ("log_std", &log_std, meta.act_dim),
+            ("obs_mean", &obs_mean, meta.obs_dim),
+            ("obs_std", &obs_std, meta.obs_dim),
+        ] {
+            if v.len() != n {
+                return Err(format!(
+                    "tensor {name:?} has {} values, expected {n}",
+                    v.len()
+                ));
+            }
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(format!("tensor {name:?}[{i}] = {} is not finite", v[i]));
+            }
+        }
+        if let Some(i) = obs_std.iter().position(|&s| s <= 0.0) {
+            return Err(format!(
+                "tensor \"obs_std\"[{i}] = {} must be > 0",
+                obs_std[i]
+            ));
+        }
+        if let Some(i) = mean.params().iter().position(|x| !x.is_finite()) {
+            return Err(format!("tensor \"params\"[{i}] is not finite"));
+        }
+        Ok(Self {
+            meta,
+            mean,
+            log_std,
+            obs_mean,
+            obs_std,
+        })
+    }
+
+    /// The observation normalisation `(mean, std)` it was trained with.
+    pub fn obs_stats(&self) -> (&[f32], &[f32]) {
+        (&self.obs_mean, &self.obs_std)
+    }
+
+    /// The mean network's flat parameters.
+    pub fn params(&self) -> &[f32] {
+        self.mean.params()
+    }
+
+    /// Serialises to safetensors bytes (see the module docs).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+        let meta = serde_json::to_string(&self.meta).map_err(|e| e.to_string())?;
+        let raw: Vec<(&str, Vec<u8>, usize)> = [
+            ("params", self.mean.params()),
+            ("log_std", &self.log_std[..]),
+            ("obs_mean", &self.obs_mean[..]),
+            ("obs_std", &self.obs_std[..]),
+        ]
+        .into_iter()
+        .map(|(n, v)| (n, v.iter().flat_map(|x| x.to_le_bytes()).collect(), v.len()))
+        .collect();
+        let mut views = Vec::new();
+        for (name, bytes, n) in &raw {
+            let view = TensorView::new(Dtype::F32, vec![*n], bytes).map_err(|e| e.to_string())?;
+            views.push((*name, view));
+        }
+        let header: HashMap<String, String> = [
+            ("format".to_owned(), FORMAT.to_owned()),
+            ("format_version".to_owned(), FORMAT_VERSION.to_string()),
+            ("meta".to_owned(), meta),
+        ]
+        .into_iter()
+        .collect();
+        safetensors::serialize(views, Some(header)).map_err(|e| e.to_string())
+    }
+
+    /// Writes the expert to `path` atomically.
+    pub fn save(&self, path: &Path) -> Result<(), ExpertError> {
+        let bytes = self.to_bytes().map_err(|reason| ExpertError::Invalid {
+            path: path.to_owned(),
+            reason,
+        })?;
+        crate::write_atomic(path, &bytes).map_err(|(path, source)| ExpertError::Io { path, source })
+    }
+
+    /// Reads and validates an expert file.
+    pub fn load(path: &Path) -> Result<Self, ExpertError> {
+        let bytes = std::fs::read(path).map_err(|source| ExpertError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_bytes(&bytes).map_err(|reason| ExpertError::Invalid {
+            path: path.to_owned(),
+            reason,
+        })
+    }
+
+    /// Parses and validates safetensors bytes.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, String> {
+        let st = SafeTensors::deserialize(bytes)
+            .map_err(|e| format!("not a safetensors file (truncated or corrupt): {e}"))?;
+        let (_, md) = SafeTensors::read_metadata(bytes).map_err(|e| e.to_string())?;
+        let empty = HashMap::new();
+        let header = md.metadata().as_ref().unwrap_or(&empty);
+        let get = |key: &str| {
+            header
+                .get(key)
+                .ok_or_else(|| format!("header key {key:?} is missing"))
+        };
+        let format = get("format")?;
+        if format != FORMAT {
+            return Err(format!("header format = {format:?}, expected {FORMAT:?}"));
+        }
+        let version = get("format_version")?;
+        if version.trim().parse::<u32>().ok() != Some(FORMAT_VERSION) {
+            return Err(format!(
+                "unsupported format_version {version:?}; this build reads version {FORMAT_VERSION}"
+            ));
+        }
+        let meta: ExpertMeta =
+            serde_json::from_str(get("meta")?).map_err(|e| format!("header meta: {e}"))?;
+        let read = |name: &str| -> Result<Vec<f32>, String> {
+            let t = st
+                .tensor(name)
+                .map_err(|_| format!("tensor {name:?} is missing"))?;
+            if t.dtype() != Dtype::F32 || t.shape().len() != 1 {
+                return Err(format!(
+                    "tensor {name:?} has dtype {:?} shape {:?}, expected F32 of rank 1",
+                    t.dtype(),
+                    t.shape()
+                ));
+            }
+            Ok(t.data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect())
+        };
+        Self::new(
+            meta,
+            read("params")?,
+            read("log_std")?,
+            read("obs_mean")?,
+            read("obs_std")?,
+        )
+    }
+
+    /// Refuses an expert for another env, mode, mode count or shape than `spec`'s
+    /// `mode`; `path` names the file in the error.
+    pub fn check_fits(&self, spec: &EnvSpec, mode: usize, path: &Path) -> Result<(), ExpertError> {
+        let m = &self.meta;
+        let checks = [
+            ("env", m.env.clone(), spec.name.clone()),
+            ("mode", m.mode.to_string(), mode.to_string()),
+            ("n_modes", m.n_modes.to_string(), spec.n_modes.to_string()),
+            ("obs_dim", m.obs_dim.to_string(), spec.obs_dim.to_string()),
+            ("act_dim", m.act_dim.to_string(), spec.act_dim.to_string()),
+        ];
+        for (field, file, want) in checks {
+            if file != want {
+                return Err(ExpertError::Mismatch {
+                    path: path.to_owned(),
+                    reason: format!("{field} = {file} in the file, but the env needs {want}"),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Buffers sized for this expert.
+    pub fn scratch(&self) -> ExpertScratch {
+        ExpertScratch {
+            input: vec![0.0; self.meta.sizes[0]],
+            out: vec![0.0; self.meta.act_dim],
+            scratch: vec![0.0; self.mean.scratch_len()],
+        }
+    }
+
+    /// Writes the action for `obs` into `action`: `tanh(mean + noise_scale * std * n)`
+    /// (`noise_scale = 0` is the deterministic `tanh(mean)`).
+    pub fn act(
+        &self,
+        obs: &[f32],
+        noise_scale: f32,
+        rng: &mut ChaCha8Rng,
+        buf: &mut ExpertScratch,
+        action: &mut [f32],
+    ) {
+        let d = self.meta.obs_dim;
+        for (i, x) in buf.input[..d].iter_mut().enumerate() {
+            *x = (obs[i] - self.obs_mean[i]) / self.obs_std[i];
+        }
+        buf.input[d..].fill(0.0);
+        self.mean
+            .forward(&buf.input, &mut buf.out, &mut buf.scratch);
+        for ((a, m), ls) in action.iter_mut().zip(&buf.out).zip(&self.log_std) {
+            let n: f32 = if noise_scale > 0.0 {
+                rng.sample(StandardNormal)
+            } else {
+                0.0
+            };
+            *a = (m + noise_scale * ls.exp() * n).tanh();
+        }
+    }
+}
+
+/// Directory holding `<env>/mode<k>.safetensors`: `ESS_EXPERTS_DIR` if set, else the
+/// repository's `deploy/experts`.
+pub fn experts_dir() -> PathBuf {
+    match std::env::var_os("ESS_EXPERTS_DIR") {
+        Some(d) => PathBuf::from(d),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/experts"),
+    }
+}
+
+/// Path of `env`'s mode `mode` expert under `dir`.
+pub fn expert_path(dir: &Path, env: &str, mode: usize) -> PathBuf {
+    dir.join(env).join(format!("mode{mode}.safetensors"))
+}
+
+/// An env driven by one trained expert per mode; see the module docs.
+pub struct ExpertEnv {
+    env: Box<dyn Env>,
+    experts: Vec<ExpertPolicy>,
+    /// Scale of the experts' Gaussian noise when acting (1 = as trained).
+    noise_scale: f32,
+    obs: Vec<f32>,
+    buf: std::sync::Mutex<Vec<ExpertScratch>>,
+}
+
+impl std::fmt::Debug for ExpertEnv {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ExpertEnv")
+            .field("spec", self.env.spec())
+            .field("experts", &self.experts.len())
+            .field("noise_scale", &self.noise_scale)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ExpertEnv {
+    /// Wraps `env` with `experts` (one per mode, in mode order), checking each fits.
+    pub fn new(
+        env: Box<dyn Env>,
+        experts: Vec<(PathBuf, ExpertPolicy)>,
+        noise_scale: f32,
+    ) -> Result<Self, ExpertError> {
+        let spec = env.spec().clone();
+        if experts.len() != spec.n_modes {
+            return Err(ExpertError::Mismatch {
+                path: experts_dir(),
+                reason: format!(
+                    "{} experts for an env with {} modes",
+                    experts.len(),
+                    spec.n_modes
+                ),
+            });
+        }
+        for (mode, (path, e)) in experts.iter().enumerate() {
+            e.check_fits(&spec, mode, path)?;
+        }
+        let experts: Vec<ExpertPolicy> = experts.into_iter().map(|(_, e)| e).collect();
+        let buf = experts.iter().map(|e| e.scratch()).collect();
+        Ok(Self {
+            obs: vec![0.0; spec.obs_dim],
+            env,
+            experts,
+            noise_scale,
+            buf: std::sync::Mutex::new(buf),
+        })
+    }
+
+    /// Loads every mode's expert of `env` from `dir` ([`expert_path`]) and wraps it.
+    pub fn load(env: Box<dyn Env>, dir: &Path) -> Result<Self, ExpertError> {
+        let spec = env.spec().clone();
+        let mut experts = Vec::with_capacity(spec.n_modes);
+        for mode in 0..spec.n_modes {
+            let path = expert_path(dir, &spec.name, mode);
+            if !path.exists() {
+                return Err(ExpertError::Missing {
+                    env: spec.name.clone(),
+                    mode,
+                    path,
+                });
+            }
+            let e = ExpertPolicy::load(&path)?;
+            experts.push((path, e));
+        }
+        Self::new(env, experts, 1.0)
+    }
+
+    /// The wrapped env.
+    pub fn inner(&self) -> &dyn Env {
+        self.env.as_ref()
+    }
+
+    /// The experts, in mode order.
+    pub fn experts(&self) -> &[ExpertPolicy] {
+        &self.experts
+    }
+}
+
+impl Env for ExpertEnv {
+    fn spec(&self) -> &EnvSpec {
+        self.env.spec()
+    }
+
+    fn reset(&mut self, seed: u64, obs: &mut [f32]) -> Result<(), EnvError> {
+        self.env.reset(seed, obs)?;
+        self.obs.copy_from_slice(obs);
+        Ok(())
+    }
+
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<StepOutcome, EnvError> {
+        let out = self.env.step(action, obs)?;
+        self.obs.copy_from_slice(obs);
+        Ok(out)
+    }
+
+    fn mode_rewards(&self, out: &mut [f32]) {
+        self.env.mode_rewards(out)
+    }
+
+    fn task_rewards(&self, out: &mut [f32]) {
+        self.env.task_rewards(out)
+    }
+
+    fn forward_velocity(&self) -> Option<f64> {
+        self.env.forward_velocity()
+    }
+}
+
+impl ScriptedExpert for ExpertEnv {
+    fn expert_action(
+        &self,
+        mode: usize,
+        rng: &mut ChaCha8Rng,
+        action: &mut [f32],
+    ) -> Result<(), EnvError> {
+        let spec = self.env.spec();
+        if mode >= spec.n_modes {
+            return Err(EnvError::ModeOutOfRange {
+                mode,
+                n_modes: spec.n_modes,
+            });
+        }
+        crate::env::check_action(action, spec.act_dim).or_else(|e| match e {
+            // The buffer's contents are irrelevant (it is written); only its length.
+            EnvError::NonFiniteAction { .. } => Ok(()),
+            e => Err(e),
+        })?;
+        let mut bufs = self.buf.lock().unwrap_or_else(|p| p.into_inner());
+        self.experts[mode].act(&self.obs, self.noise_scale, rng, &mut bufs[mode], action);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::traj2d::{Traj2D, Traj2DConfig};
+    use rand::SeedableRng;
+
+    fn toy_expert(mode: usize, seed: u64) -> ExpertPolicy {
+        let spec = Traj2D::new(Traj2DConfig::default())
+            .expect("env")
+            .spec()
+            .clone();
+        let sizes = vec![spec.obs_dim + 2, 8, spec.act_dim];
+        let layout = MlpLayout {
+            sizes: sizes.clone(),
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let params = (0..layout.n_params())
+            .map(|_| rng.random_range(-0.5..0.5))
+            .collect();
+        let meta = ExpertMeta {
+            env: spec.name.clone(),
+            mode,
+            n_modes: spec.n_modes,
+            obs_dim: spec.obs_dim,
+            act_dim: spec.act_dim,
+            sizes,
+            extra_inputs: 2,
+            trained_steps: 10,
+            mean_return: 1.5,
+            generator: "test".into(),
+        };
+        ExpertPolicy::new(
+            meta,
+            params,
+            vec![-1.0; spec.act_dim],
+            vec![0.1; spec.obs_dim],
+            vec![2.0; spec.obs_dim],
+        )
+        .expect("valid expert")
+    }
+
+    fn toy_env() -> Box<dyn Env> {
+        Box::new(Traj2D::new(Traj2DConfig::default()).expect("env"))
+    }
+
+    #[test]
+    fn an_expert_file_round_trips_exactly() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("e.safetensors");
+        let e = toy_expert(1, 3);
+        e.save(&path).expect("save");
+        assert_eq!(ExpertPolicy::load(&path).expect("load"), e);
+    }
+
+    #[test]
+    fn corrupt_or_foreign_files_are_named_errors() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("e.safetensors");
+        std::fs::write(&path, b"not safetensors").expect("write");
+        let msg = ExpertPolicy::load(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("e.safetensors") && msg.contains("corrupt"),
+            "{msg}"
+        );
+        let bytes = toy_expert(0, 1).to_bytes().expect("bytes");
+        let cut = &bytes[..bytes.len() - 7];
+        let msg = ExpertPolicy::from_bytes(cut).unwrap_err();
+        assert!(msg.contains("truncated"), "{msg}");
+        let missing = ExpertPolicy::load(&dir.path().join("nope.safetensors"))
+            .unwrap_err()
+            .to_string();
+        assert!(missing.contains("nope.safetensors"), "{missing}");
+    }
+
+    #[test]
+    fn an_expert_for_another_env_mode_or_shape_is_refused_by_field() {
+        let spec = toy_env().spec().clone();
+        let e = toy_expert(2, 1);
+        let p = Path::new("x.safetensors");
+        e.check_fits(&spec, 2, p).expect("fits its own mode");
+        let msg = e.check_fits(&spec, 1, p).unwrap_err().to_string();
+        assert!(msg.contains("mode = 2") && msg.contains("needs 1"), "{msg}");
+        let mut other = spec.clone();
+        other.name = "walker2d".into();
+        let msg = e.check_fits(&other, 2, p).unwrap_err().to_string();
+        assert!(
+            msg.contains("env = traj2d") && msg.contains("walker2d"),
+            "{msg}"
+        );
+        let mut other = spec.clone();
+        other.obs_dim += 1;
+        let msg = e.check_fits(&other, 2, p).unwrap_err().to_string();
+        assert!(msg.contains("obs_dim"), "{msg}");
+    }
+
+    #[test]
+    fn inconsistent_meta_is_refused() {
+        let e = toy_expert(0, 1);
+        let mut meta = e.meta.clone();
+        meta.extra_inputs = 0;
+        let err = ExpertPolicy::new(
+            meta,
+            e.params().to_vec(),
+            vec![0.0; 2],
+            vec![0.0; 10],
+            vec![1.0; 10],
+        )
+        .unwrap_err();
+        assert!(err.contains("sizes[0]"), "{err}");
+        let err = ExpertPolicy::new(
+            e.meta.clone(),
+            e.params().to_vec(),
+            vec![0.0; 1],
+            vec![0.0; 10],
+            vec![0.0; 10],
+        )
+        .unwrap_err();
+        assert!(err.contains("obs_std"), "{err}");
+    }
+
+    #[test]
+    fn a_missing_expert_names_the_command_that_trains_it() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let msg = ExpertEnv::load(toy_env(), dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("ess experts train --env traj2d --mode 0"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn expert_env_drives_each_mode_with_its_own_expert_deterministically() {
+        let dir = tempfile::tempdir().expect("tmp");
+        for k in 0..4 {
+            let path = expert_path(dir.path(), "traj2d", k);
+            std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+            toy_expert(k, 10 + k as u64).save(&path).expect("save");
+        }
+        let mut env = ExpertEnv::load(toy_env(), dir.path()).expect("load");
+        let a = crate::expert_episode(&mut env, 1, 5).expect("episode");
+        let b = crate::expert_episode(&mut env, 1, 5).expect("episode");
+        let c = crate::expert_episode(&mut env, 2, 5).expect("episode");
+        assert_eq!(a, b);
+        assert_ne!(a.act, c.act);
+        assert!(a.act.iter().all(|x| x.abs() <= 1.0));
+        let mut act = vec![0.0; 1];
+        let err = env
+            .expert_action(4, &mut ChaCha8Rng::seed_from_u64(0), &mut act)
+            .unwrap_err();
+        assert!(
+            matches!(err, EnvError::ModeOutOfRange { mode: 4, .. }),
+            "{err}"
+        );
+    }
+}

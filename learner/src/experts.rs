@@ -1,0 +1,472 @@
+//! Expert training and evaluation (paper Sec. 4, "Multi-modal demonstrations
+//! preparation": "we first pre-train K expert policies, each corresponding to K
+//! different goals").
+//!
+//! `ess experts train --env E --mode k` trains mode `k`'s expert with the same PPO as
+//! the imitation learner ([`crate::ppo`]), on the env's *task* reward of that mode
+//! ([`ess_envs::Env::task_rewards`]) instead of a discriminator. The policy has no
+//! latent: its eps and code inputs are held at zero (the file records them as
+//! `extra_inputs`). Observations are normalised with running statistics of every
+//! observation seen, frozen into the weights of each rollout and saved with the
+//! expert. Rewards are scaled by the running return standard deviation.
+//!
+//! Outputs: the expert file ([`ess_envs::ExpertPolicy`]), written atomically after
+//! every iteration, and beside it `<file>.state.safetensors` (policy + value
+//! variables) and `<file>.csv` (one row per iteration), so `--resume` continues a run.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use ess_actor::{LatentSpec, RolloutSource, ThreadedActors, Worker};
+use ess_envs::{Env, ExpertMeta, ExpertPolicy, make_plain_env};
+use ess_proto::Chunk;
+use ess_proto::config::{LatentPrior, PpoConfig};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use tch::{Tensor, nn};
+
+use crate::nets::{export_policy, tensor_2d, tensor_to_vec};
+use crate::ppo::{PpoBatch, PpoLearner, RewardScaler, chunks_gae, column};
+
+/// What to train.
+#[derive(Debug, Clone)]
+pub struct ExpertTrainConfig {
+    /// Environment name.
+    pub env: String,
+    /// Mode count of the env.
+    pub n_modes: usize,
+    /// Mode whose task reward is maximised.
+    pub mode: usize,
+    /// Total env steps (including those of a resumed run).
+    pub steps: u64,
+    /// Env steps per PPO iteration.
+    pub rollout_steps: usize,
+    /// Rollout workers (threads).
+    pub actors: usize,
+    /// libtorch intra-op threads.
+    pub torch_threads: usize,
+    /// Seed.
+    pub seed: u64,
+    /// PPO settings.
+    pub ppo: PpoConfig,
+    /// Expert file to write.
+    pub out: PathBuf,
+    /// Continue from `out` and its state file instead of starting afresh.
+    pub resume: bool,
+}
+
+/// One iteration's report.
+#[derive(Debug, Clone, Default)]
+pub struct ExpertIteration {
+    /// Iteration index (1-based, continuing across resumes).
+    pub iteration: usize,
+    /// Env steps so far.
+    pub env_steps: u64,
+    /// Mean task return of the episodes that ended in this iteration (`None` if none).
+    pub mean_return: Option<f64>,
+    /// Mean length of those episodes.
+    pub mean_length: Option<f64>,
+    /// Seconds this iteration took.
+    pub seconds: f64,
+    /// Policy entropy after the update.
+    pub entropy: f64,
+}
+
+/// Running per-dimension mean and variance (Welford, merged per batch).
+#[derive(Debug, Clone)]
+struct RunningStats {
+    count: f64,
+    mean: Vec<f64>,
+    m2: Vec<f64>,
+}
+
+impl RunningStats {
+    fn new(d: usize) -> Self {
+        Self {
+            count: 0.0,
+            mean: vec![0.0; d],
+            m2: vec![0.0; d],
+        }
+    }
+
+    fn update(&mut self, rows: &[f32]) {
+        let d = self.mean.len();
+        for row in rows.chunks_exact(d) {
+            self.count += 1.0;
+            for (j, &x) in row.iter().enumerate() {
+                let delta = x as f64 - self.mean[j];
+                self.mean[j] += delta / self.count;
+                self.m2[j] += delta * (x as f64 - self.mean[j]);
+            }
+        }
+    }
+
+    fn mean_std(&self) -> (Vec<f32>, Vec<f32>) {
+        let std = self
+            .m2
+            .iter()
+            .map(|m| {
+                if self.count < 2.0 {
+                    1.0
+                } else {
+                    ((m / self.count).sqrt() as f32).max(1e-3)
+                }
+            })
+            .collect();
+        (self.mean.iter().map(|&m| m as f32).collect(), std)
+    }
+}
+
+/// The state file beside an expert file.
+pub fn state_path(expert: &Path) -> PathBuf {
+    let mut s = expert.as_os_str().to_owned();
+    s.push(".state.safetensors");
+    PathBuf::from(s)
+}
+
+/// The per-iteration CSV beside an expert file.
+pub fn csv_path(expert: &Path) -> PathBuf {
+    let mut s = expert.as_os_str().to_owned();
+    s.push(".csv");
+    PathBuf::from(s)
+}
+
+/// Episode returns ending in `chunks`, continuing each stream's open episode in `open`.
+fn finished_episodes(chunks: &[Chunk], open: &mut Vec<(f64, usize)>) -> Vec<(f64, usize)> {
+    if open.len() < chunks.len() {
+        open.resize(chunks.len(), (0.0, 0));
+    }
+    let mut done = Vec::new();
+    for (c, acc) in chunks.iter().zip(open.iter_mut()) {
+        for i in 0..c.len() {
+            acc.0 += c.env_reward[i] as f64;
+            acc.1 += 1;
+            if c.terminated[i] || c.truncated[i] {
+                done.push(*acc);
+                *acc = (0.0, 0);
+            }
+        }
+    }
+    done
+}
+
+/// Trains one expert; `progress` sees every iteration. Stops early (saving) when
+/// `shutdown` is set. Returns the saved expert.
+pub fn train_expert(
+    cfg: &ExpertTrainConfig,
+    progress: &mut dyn FnMut(&ExpertIteration),
+    shutdown: &AtomicBool,
+) -> Result<ExpertPolicy> {
+    let probe = make_plain_env(&cfg.env, cfg.n_modes)?;
+    let spec = probe.spec().clone();
+    if cfg.mode >= spec.n_modes {
+        bail!(ess_envs::EnvError::ModeOutOfRange {
+            mode: cfg.mode,
+            n_modes: spec.n_modes
+        });
+    }
+    if cfg.rollout_steps == 0 || cfg.actors == 0 {
+        bail!("rollout_steps and actors must be at least 1");
+    }
+    tch::set_num_threads(cfg.torch_threads.max(1) as i32);
+    tch::manual_seed(cfg.seed as i64);
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xE4BE57);
+    let (od, ad) = (spec.obs_dim, spec.act_dim);
+    // One code slot, always zero: no latent (prior None keeps it zero).
+    let latent = LatentSpec {
+        prior: LatentPrior::None,
+        n_codes: 1,
+        tau: 1.0,
+        use_eps: false,
+    };
+    let input = od + 2;
+    let mut vs = nn::VarStore::new(tch::Device::Cpu);
+    let prior_vs = nn::VarStore::new(tch::Device::Cpu);
+    let mut ppo = PpoLearner::new(
+        &vs,
+        &prior_vs,
+        input,
+        ad,
+        1,
+        &cfg.ppo,
+        LatentPrior::None,
+        1.0,
+    )?;
+    let mut stats = RunningStats::new(od);
+    let mut env_steps = 0u64;
+    let mut first_iteration = 1;
+    if cfg.resume {
+        let old = ExpertPolicy::load(&cfg.out)?;
+        old.check_fits(&spec, cfg.mode, &cfg.out)?;
+        let state = state_path(&cfg.out);
+        vs.load(&state)
+            .with_context(|| format!("loading training state {}", state.display()))?;
+        let (m, s) = old.obs_stats();
+        // Resume the normaliser as if from `trained_steps` observations.
+        stats.count = old.meta.trained_steps as f64;
+        stats.mean = m.iter().map(|&x| x as f64).collect();
+        stats.m2 = s
+            .iter()
+            .map(|&x| (x as f64).powi(2) * stats.count)
+            .collect();
+        env_steps = old.meta.trained_steps;
+        first_iteration = (env_steps / cfg.rollout_steps as u64) as usize + 1;
+    }
+    let workers: Vec<Worker> = (0..cfg.actors)
+        .map(|i| -> Result<Worker> {
+            let env = make_plain_env(&cfg.env, cfg.n_modes)?;
+            let seed = cfg
+                .seed
+                .wrapping_mul(7_919)
+                .wrapping_add(env_steps)
+                .wrapping_add(i as u64);
+            Ok(Worker::new(env, seed, 1).with_task_reward(cfg.mode)?)
+        })
+        .collect::<Result<_>>()?;
+    let mut actors = ThreadedActors::new(workers, latent);
+    if let Some(dir) = cfg.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let csv_file = csv_path(&cfg.out);
+    let mut csv = std::io::BufWriter::new(
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(cfg.resume)
+            .write(true)
+            .truncate(!cfg.resume)
+            .open(&csv_file)
+            .with_context(|| format!("opening {}", csv_file.display()))?,
+    );
+    if !cfg.resume {
+        writeln!(
+            csv,
+            "iteration,env_steps,mean_return,mean_length,seconds,entropy"
+        )?;
+    }
+    let mut scaler = RewardScaler::default();
+    let mut open = Vec::new();
+    let mut recent: Vec<f64> = Vec::new();
+    let mut it = first_iteration;
+    let mut expert = None;
+    while env_steps < cfg.steps {
+        if shutdown.load(Ordering::Relaxed) {
+            break;
+        }
+        let t0 = Instant::now();
+        let (obs_mean, obs_std) = stats.mean_std();
+        let weights = Arc::new(export_policy(
+            &ppo.policy,
+            &ppo.prior_logits,
+            &obs_mean,
+            &obs_std,
+            it as u64,
+        )?);
+        let chunks = actors.collect(weights, cfg.rollout_steps)?;
+        let mut all = Chunk::with_capacity(od, ad, 1, cfg.rollout_steps);
+        for c in &chunks {
+            all.extend(c);
+        }
+        env_steps += all.len() as u64;
+        let episodes = finished_episodes(&chunks, &mut open);
+        recent.extend(episodes.iter().map(|e| e.0));
+        let keep = recent.len().saturating_sub(100);
+        recent.drain(..keep);
+        let norm = |x: &[f32]| {
+            let mut v = x.to_vec();
+            crate::classifier::normalize_rows(&mut v, &obs_mean, &obs_std);
+            tensor_2d(&v, od)
+        };
+        let obs_n = norm(&all.obs);
+        let next_n = norm(&all.next_obs);
+        let n = all.len() as i64;
+        let zeros = Tensor::zeros([n, 1], (tch::Kind::Float, tch::Device::Cpu));
+        let eps_col = column(&all.eps);
+        let (values, next_values) = tch::no_grad(|| {
+            let vin = Tensor::cat(&[&obs_n, &eps_col, &zeros], 1);
+            let nin = Tensor::cat(&[&next_n, &eps_col, &zeros], 1);
+            (
+                tensor_to_vec(&ppo.values(&vin)),
+                tensor_to_vec(&ppo.values(&nin)),
+            )
+        });
+        let rewards = if cfg.ppo.normalize_rewards {
+            scaler.scale_chunks(&chunks, &all.env_reward, cfg.ppo.gamma)
+        } else {
+            all.env_reward.clone()
+        };
+        let (adv, ret) = chunks_gae(
+            &chunks,
+            &rewards,
+            &values,
+            &next_values,
+            cfg.ppo.gamma,
+            cfg.ppo.gae_lambda,
+        );
+        let batch = PpoBatch {
+            obs: obs_n,
+            eps: eps_col,
+            code: zeros.shallow_clone(),
+            gumbel: zeros,
+            pre_tanh: tensor_2d(&all.pre_tanh, ad),
+            old_logp: Tensor::from_slice(&all.logp),
+            adv: Tensor::from_slice(&adv),
+            returns: Tensor::from_slice(&ret),
+        };
+        let st = ppo.update(&batch, &mut rng);
+        // The normaliser learns from this rollout only after the update used it.
+        stats.update(&all.obs);
+        let mean_return = (!episodes.is_empty())
+            .then(|| episodes.iter().map(|e| e.0).sum::<f64>() / episodes.len() as f64);
+        let mean_length = (!episodes.is_empty())
+            .then(|| episodes.iter().map(|e| e.1 as f64).sum::<f64>() / episodes.len() as f64);
+        let report = ExpertIteration {
+            iteration: it,
+            env_steps,
+            mean_return,
+            mean_length,
+            seconds: t0.elapsed().as_secs_f64(),
+            entropy: st.entropy,
+        };
+        writeln!(
+            csv,
+            "{},{},{},{},{:.4},{:.4}",
+            it,
+            env_steps,
+            mean_return.map(|v| format!("{v:.4}")).unwrap_or_default(),
+            mean_length.map(|v| format!("{v:.1}")).unwrap_or_default(),
+            report.seconds,
+            st.entropy
+        )?;
+        progress(&report);
+        it += 1;
+        // Save every 10 iterations and at the end (the state file is what resumes).
+        if it % 10 == 0 || env_steps >= cfg.steps || shutdown.load(Ordering::Relaxed) {
+            let e = save(cfg, &spec, &ppo, &stats, env_steps, &recent)?;
+            vs.save(state_path(&cfg.out))?;
+            csv.flush()?;
+            expert = Some(e);
+        }
+    }
+    csv.flush()?;
+    match expert {
+        Some(e) => Ok(e),
+        None => {
+            let e = save(cfg, &spec, &ppo, &stats, env_steps, &recent)?;
+            vs.save(state_path(&cfg.out))?;
+            Ok(e)
+        }
+    }
+}
+
+fn save(
+    cfg: &ExpertTrainConfig,
+    spec: &ess_envs::EnvSpec,
+    ppo: &PpoLearner,
+    stats: &RunningStats,
+    env_steps: u64,
+    recent: &[f64],
+) -> Result<ExpertPolicy> {
+    let (obs_mean, obs_std) = stats.mean_std();
+    let w = export_policy(&ppo.policy, &ppo.prior_logits, &obs_mean, &obs_std, 0)?;
+    let meta = ExpertMeta {
+        env: spec.name.clone(),
+        mode: cfg.mode,
+        n_modes: spec.n_modes,
+        obs_dim: spec.obs_dim,
+        act_dim: spec.act_dim,
+        sizes: w.mean.layout().sizes.clone(),
+        extra_inputs: 2,
+        trained_steps: env_steps,
+        mean_return: if recent.is_empty() {
+            0.0
+        } else {
+            recent.iter().sum::<f64>() / recent.len() as f64
+        },
+        generator: format!("ess {}", env!("CARGO_PKG_VERSION")),
+    };
+    let e = ExpertPolicy::new(meta, w.mean.params().to_vec(), w.log_std, obs_mean, obs_std)
+        .map_err(|r| anyhow::anyhow!("exported expert is inconsistent: {r}"))?;
+    e.save(&cfg.out)?;
+    Ok(e)
+}
+
+/// One row of `ess experts eval`.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ExpertEvalRow {
+    /// Mode.
+    pub mode: usize,
+    /// Mean task return of the mode's expert (stochastic, as it generates demos).
+    pub expert_return: f64,
+    /// Mean task return of the mode under uniformly random actions.
+    pub random_return: f64,
+    /// Mean episode length of the expert.
+    pub expert_length: f64,
+    /// Mean forward velocity of the expert over its steps (locomotion envs).
+    pub forward_velocity: Option<f64>,
+    /// Mean forward velocity under random actions.
+    pub random_forward_velocity: Option<f64>,
+}
+
+/// Evaluates `experts[k]` (one per mode) on `env` against uniformly random actions,
+/// `episodes` episodes each, scoring mode `k`'s task reward.
+pub fn eval_experts(
+    env: &mut dyn Env,
+    experts: &[ExpertPolicy],
+    episodes: usize,
+    seed: u64,
+) -> Result<Vec<ExpertEvalRow>> {
+    use rand::Rng;
+    let spec = env.spec().clone();
+    let mut rows = Vec::new();
+    for (mode, e) in experts.iter().enumerate() {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ mode as u64);
+        let mut buf = e.scratch();
+        let mut run = |policy: Option<&ExpertPolicy>,
+                       rng: &mut ChaCha8Rng|
+         -> Result<(f64, f64, Option<f64>)> {
+            let (mut ret, mut len, mut vel, mut nvel) = (0.0, 0.0, 0.0, 0usize);
+            let mut obs = vec![0.0; spec.obs_dim];
+            let mut act = vec![0.0; spec.act_dim];
+            let mut r = vec![0.0; spec.n_modes];
+            for _ in 0..episodes {
+                env.reset(rng.random(), &mut obs)?;
+                loop {
+                    match policy {
+                        Some(p) => p.act(&obs, 1.0, rng, &mut buf, &mut act),
+                        None => act
+                            .iter_mut()
+                            .for_each(|a| *a = rng.random_range(-1.0..1.0)),
+                    }
+                    let out = env.step(&act, &mut obs)?;
+                    env.task_rewards(&mut r);
+                    ret += r[mode] as f64;
+                    len += 1.0;
+                    if let Some(v) = env.forward_velocity() {
+                        vel += v;
+                        nvel += 1;
+                    }
+                    if out.done() {
+                        break;
+                    }
+                }
+            }
+            let n = episodes.max(1) as f64;
+            Ok((ret / n, len / n, (nvel > 0).then(|| vel / nvel as f64)))
+        };
+        let (er, el, ev) = run(Some(e), &mut rng)?;
+        let (rr, _, rv) = run(None, &mut rng)?;
+        rows.push(ExpertEvalRow {
+            mode,
+            expert_return: er,
+            random_return: rr,
+            expert_length: el,
+            forward_velocity: ev,
+            random_forward_velocity: rv,
+        });
+    }
+    Ok(rows)
+}
