@@ -7,14 +7,17 @@
 //!   behaviour modes through the origin.
 //! - [`reacher`]: the multi-target Reacher task (Sec. 4, "Task setup (2)") on MuJoCo:
 //!   a two-link arm, one hidden target per behaviour mode.
+//! - [`pusher`]: the multi-goal Pusher task (Sec. 4, "Task setup (3)") on MuJoCo: a
+//!   7-DoF arm pushes a puck, one hidden goal per behaviour mode; no scripted expert.
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
 //! This crate never links libtorch, tokio or tonic; it links MuJoCo (through
-//! `mujoco-rs`) for [`reacher`].
+//! `mujoco-rs`) for [`reacher`] and [`pusher`].
 
 pub mod demos;
 pub mod env;
+pub mod pusher;
 pub mod reacher;
 pub mod traj2d;
 
@@ -22,5 +25,6 @@ pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
 pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env};
+pub use pusher::{Pusher, PusherConfig};
 pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};
