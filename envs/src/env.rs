@@ -15,11 +15,13 @@
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::pusher::{Pusher, PusherConfig};
 use crate::reacher::{Reacher, ReacherConfig};
 use crate::traj2d::{Traj2D, Traj2DConfig};
 
-/// Names accepted by [`make_env`].
-pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher"];
+/// Names of every environment: all are built by [`make_plain_env`], those with a
+/// scripted expert (all but `"pusher"`) also by [`make_env`].
+pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher", "pusher"];
 
 /// Static description of an environment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -104,6 +106,15 @@ pub enum EnvError {
         /// Comma-separated list of known names.
         known: String,
     },
+    /// [`make_env`] was asked for a known env that has no scripted expert; build it
+    /// with [`make_plain_env`] instead.
+    #[error(
+        "environment {name:?} has no scripted expert (its experts are trained policies); build it with make_plain_env"
+    )]
+    NoScriptedExpert {
+        /// Name requested.
+        name: String,
+    },
     /// A construction parameter is invalid.
     #[error("invalid parameter {field} = {value}: {reason}")]
     BadParam {
@@ -175,12 +186,16 @@ pub trait ScriptedExpert: Env {
     ) -> Result<(), EnvError>;
 }
 
-/// Builds an env by name (`"traj2d"` or `"reacher"`). `n_modes` is the requested
-/// number of behaviour modes: traj2d supports exactly 4, reacher 2 to 12 (targets);
-/// anything else is [`EnvError::BadParam`] naming `n_modes`. An unknown name is
-/// [`EnvError::UnknownEnv`], listing the known ones.
+/// Builds an env with a scripted expert by name (`"traj2d"` or `"reacher"`). `n_modes`
+/// is the requested number of behaviour modes: traj2d supports exactly 4, reacher 2 to
+/// 12 (targets); anything else is [`EnvError::BadParam`] naming `n_modes`. A known env
+/// without a scripted expert (`"pusher"`) is [`EnvError::NoScriptedExpert`]; an
+/// unknown name is [`EnvError::UnknownEnv`], listing the known ones.
 pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, EnvError> {
     match name {
+        "pusher" => Err(EnvError::NoScriptedExpert {
+            name: name.to_owned(),
+        }),
         "traj2d" => {
             if n_modes != Traj2D::N_MODES {
                 return Err(EnvError::BadParam {
@@ -199,6 +214,22 @@ pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, E
             name: name.to_owned(),
             known: KNOWN_ENVS.join(", "),
         }),
+    }
+}
+
+/// Builds any known env by name as a plain [`Env`] (no expert): everything
+/// [`make_env`] builds, plus `"pusher"` (2 to 6 goals). `n_modes` is validated as in
+/// [`make_env`]; an unknown name is [`EnvError::UnknownEnv`].
+pub fn make_plain_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
+    match name {
+        "pusher" => Ok(Box::new(Pusher::new(PusherConfig {
+            n_modes,
+            ..PusherConfig::default()
+        })?)),
+        _ => {
+            let env: Box<dyn Env> = make_env(name, n_modes)?;
+            Ok(env)
+        }
     }
 }
 
@@ -304,5 +335,49 @@ mod tests {
             assert_eq!(env.spec().n_modes, k);
             assert_eq!(env.spec().name, "reacher");
         }
+    }
+
+    #[test]
+    fn make_env_refuses_pusher_which_has_no_scripted_expert() {
+        let err = make_env("pusher", 6).err().expect("no expert");
+        assert!(
+            matches!(&err, EnvError::NoScriptedExpert { name } if name == "pusher"),
+            "{err}"
+        );
+        assert!(err.to_string().contains("make_plain_env"), "{err}");
+    }
+
+    #[test]
+    fn make_plain_env_builds_every_known_env() {
+        for (name, k) in [("traj2d", 4), ("reacher", 6), ("pusher", 6), ("pusher", 2)] {
+            assert!(KNOWN_ENVS.contains(&name));
+            let env = make_plain_env(name, k).expect("known env builds");
+            assert_eq!((env.spec().name.as_str(), env.spec().n_modes), (name, k));
+        }
+        check_env("pusher via make_plain_env", &|| {
+            make_plain_env("pusher", 6).expect("pusher")
+        });
+    }
+
+    #[test]
+    fn make_plain_env_validates_names_and_mode_counts() {
+        for k in [1, 7] {
+            let err = make_plain_env("pusher", k).err().expect("bad n_modes");
+            assert!(
+                matches!(
+                    err,
+                    EnvError::BadParam {
+                        field: "n_modes",
+                        ..
+                    }
+                ),
+                "{err}"
+            );
+        }
+        let err = make_plain_env("traj2d", 6).err().expect("bad n_modes");
+        assert!(err.to_string().contains("n_modes = 6"), "{err}");
+        let err = make_plain_env("cartpole", 2).err().expect("unknown env");
+        assert!(matches!(err, EnvError::UnknownEnv { .. }), "{err}");
+        assert!(err.to_string().contains("pusher"), "{err}");
     }
 }

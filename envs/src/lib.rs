@@ -2,7 +2,8 @@
 //! demonstration datasets for Ess.
 //!
 //! - [`env`](mod@env): the [`Env`] contract every environment obeys, the [`ScriptedExpert`]
-//!   extension for environments with scripted multi-modal experts, and [`make_env`].
+//!   extension for environments with scripted multi-modal experts, [`make_env`] (envs
+//!   with a scripted expert) and [`make_plain_env`] (every env).
 //! - [`traj2d`]: the 2D trajectory task of the paper (Sec. 4, Fig. 1): four circular
 //!   behaviour modes through the origin.
 //! - [`reacher`]: the multi-target Reacher task (Sec. 4, "Task setup (2)") on MuJoCo:
@@ -24,7 +25,7 @@ pub mod traj2d;
 pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
-pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env};
+pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_plain_env};
 pub use pusher::{Pusher, PusherConfig};
 pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};
