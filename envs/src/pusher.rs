@@ -1,7 +1,8 @@
 //! Multi-goal Pusher on MuJoCo (paper Sec. 4 "Task setup (3)").
 //!
 //! A 7-DoF arm with the standard (Gymnasium) Pusher robot's dimensions pushes a puck
-//! across a table. The MJCF ([`PUSHER_MJCF`]) is written for this crate:
+//! across a table (the paper's text says "4-DoF"; the standard Pusher arm, used here,
+//! has seven joints). The MJCF ([`PUSHER_MJCF`]) is written for this crate:
 //!
 //! - joints, in `qpos` order: shoulder pan (about z, at [`SHOULDER`] `= (0, -0.6)`,
 //!   height 0), shoulder lift (about y, 0.1 m out), upper-arm roll (about x), elbow
@@ -12,9 +13,12 @@
 //!   `tips_arm` sits at the crossbar's centre (where Gymnasium's `tips_arm` body
 //!   origin is, which is what its observation reports);
 //! - a puck (`object`): a cylinder of radius 0.05 m and height 0.1 m standing on the
-//!   table (`z = -0.325`), centre height `z = -0.275`, sliding on two damped slide
-//!   joints; it collides with the fork only (the slide joints already hold it on the
-//!   table, so table contacts would cost time and change nothing);
+//!   table (`z = -0.325`), centre height `z = -0.275`, of mass 0.01 kg, sliding on
+//!   two damped slide joints; it collides with the fork only (the slide joints already
+//!   hold it on the table, so table contacts would cost time and change nothing).
+//!   Gymnasium's puck has a near-zero density (mass ~1e-8 kg); MuJoCo 3 scales a
+//!   contact's regularisation by the bodies' inverse masses, so such a puck receives
+//!   almost no contact force and cannot be pushed;
 //! - no gravity, Euler integration with timestep 0.01 s, frame skip 5 (0.05 s per env
 //!   step), joint armature 0.04 and Gymnasium's joint damping and ranges.
 //!
@@ -33,16 +37,17 @@
 //! (outward with the crossbar, sideways with a prong). Goal `k` is at angle
 //! `-goal_arc / 2 + goal_arc * k / (K - 1)` from that direction (counter-clockwise
 //! positive), at the puck's centre height. The goals are *not* in the observation, so
-//! the behaviour mode is latent.
+//! the behaviour mode is latent. (The paper only says "6 evenly distributed goal
+//! positions"; this arc is our choice, checked by a scripted push to every goal in
+//! the tests.)
 //!
 //! **Initial state**, deterministic given the reset seed: arm joints at zero (the arm
 //! stretched out along +x, level with the shoulder; Gymnasium's start) plus
 //! `U(-init_qpos_noise, init_qpos_noise)` each (default 0.02 rad) cut to the joint's
 //! range (elbow flex and wrist flex, whose ranges end at 0, get `U(-noise, 0)`), arm
-//! joint velocities
-//! `U(-init_qvel_noise, init_qvel_noise)` (default 0.005 rad/s, Gymnasium's), and the
-//! puck at [`OBJECT_START`] plus `U(-object_init_noise, object_init_noise)` in x and
-//! in y (default 0.03 m), at rest.
+//! joint velocities `U(-init_qvel_noise, init_qvel_noise)` (default 0.005 rad/s,
+//! Gymnasium's), and the puck at [`OBJECT_START`] plus
+//! `U(-object_init_noise, object_init_noise)` in x and in y (default 0.03 m), at rest.
 //!
 //! **Rewards.** The evaluation reward of mode `k` is Gymnasium Pusher-v5's with goal
 //! `k`, after the step:
