@@ -15,11 +15,13 @@
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::pusher::{Pusher, PusherConfig};
 use crate::reacher::{Reacher, ReacherConfig};
 use crate::traj2d::{Traj2D, Traj2DConfig};
 
-/// Names accepted by [`make_env`].
-pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher"];
+/// Names of every environment: all are built by [`make_plain_env`], those with a
+/// scripted expert (all but `"pusher"`) also by [`make_env`].
+pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher", "pusher"];
 
 /// Static description of an environment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -104,6 +106,17 @@ pub enum EnvError {
         /// Comma-separated list of known names.
         known: String,
     },
+    /// [`make_env`] was asked for a known env that has no scripted expert; build it
+    /// with [`make_plain_env`] instead.
+    #[error(
+        "environment {name:?} has no scripted expert and its trained experts could not be loaded: {reason}"
+    )]
+    NoScriptedExpert {
+        /// Name requested.
+        name: String,
+        /// Why the trained experts are unavailable (names the file).
+        reason: String,
+    },
     /// A construction parameter is invalid.
     #[error("invalid parameter {field} = {value}: {reason}")]
     BadParam {
@@ -175,12 +188,34 @@ pub trait ScriptedExpert: Env {
     ) -> Result<(), EnvError>;
 }
 
-/// Builds an env by name (`"traj2d"` or `"reacher"`). `n_modes` is the requested
-/// number of behaviour modes: traj2d supports exactly 4, reacher 2 to 12 (targets);
-/// anything else is [`EnvError::BadParam`] naming `n_modes`. An unknown name is
+/// Builds an env with an expert for every mode by name: `"traj2d"` and `"reacher"` have
+/// scripted experts; the others are driven by their trained experts from
+/// [`crate::experts_dir`] ([`crate::ExpertEnv`]). `n_modes` is the requested number of
+/// behaviour modes: traj2d supports exactly 4, reacher 2 to 12 (targets); anything else
+/// is [`EnvError::BadParam`] naming `n_modes`. Missing or unfit expert files are
+/// [`EnvError::NoScriptedExpert`] naming the file; an unknown name is
 /// [`EnvError::UnknownEnv`], listing the known ones.
 pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, EnvError> {
+    make_env_in(name, n_modes, &crate::experts_dir())
+}
+
+/// [`make_env`] with trained experts looked up under `experts_dir`.
+pub fn make_env_in(
+    name: &str,
+    n_modes: usize,
+    experts_dir: &std::path::Path,
+) -> Result<Box<dyn ScriptedExpert>, EnvError> {
     match name {
+        "pusher" => {
+            let plain = make_plain_env(name, n_modes)?;
+            let env = crate::ExpertEnv::load(plain, experts_dir).map_err(|e| {
+                EnvError::NoScriptedExpert {
+                    name: name.to_owned(),
+                    reason: e.to_string(),
+                }
+            })?;
+            Ok(Box::new(env))
+        }
         "traj2d" => {
             if n_modes != Traj2D::N_MODES {
                 return Err(EnvError::BadParam {
@@ -202,11 +237,20 @@ pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, E
     }
 }
 
-/// Builds any known env by name as a plain [`Env`] (no expert): what expert training
-/// and the actors need. Same `n_modes` rules and errors as [`make_env`].
+/// Builds any known env by name as a plain [`Env`] (no expert): everything
+/// [`make_env`] builds, plus `"pusher"` (2 to 6 goals). `n_modes` is validated as in
+/// [`make_env`]; an unknown name is [`EnvError::UnknownEnv`].
 pub fn make_plain_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
-    let env: Box<dyn Env> = make_env(name, n_modes)?;
-    Ok(env)
+    match name {
+        "pusher" => Ok(Box::new(Pusher::new(PusherConfig {
+            n_modes,
+            ..PusherConfig::default()
+        })?)),
+        _ => {
+            let env: Box<dyn Env> = make_env(name, n_modes)?;
+            Ok(env)
+        }
+    }
 }
 
 /// Checks that `buf` has length `expected`, as an observation buffer.
@@ -311,5 +355,56 @@ mod tests {
             assert_eq!(env.spec().n_modes, k);
             assert_eq!(env.spec().name, "reacher");
         }
+    }
+
+    #[test]
+    fn make_env_without_trained_experts_names_the_missing_file() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let err = make_env_in("pusher", 6, dir.path())
+            .err()
+            .expect("no expert");
+        assert!(
+            matches!(&err, EnvError::NoScriptedExpert { name, .. } if name == "pusher"),
+            "{err}"
+        );
+        let msg = err.to_string();
+        assert!(
+            msg.contains("mode0.safetensors") && msg.contains("ess experts train"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn make_plain_env_builds_every_known_env() {
+        for (name, k) in [("traj2d", 4), ("reacher", 6), ("pusher", 6), ("pusher", 2)] {
+            assert!(KNOWN_ENVS.contains(&name));
+            let env = make_plain_env(name, k).expect("known env builds");
+            assert_eq!((env.spec().name.as_str(), env.spec().n_modes), (name, k));
+        }
+        check_env("pusher via make_plain_env", &|| {
+            make_plain_env("pusher", 6).expect("pusher")
+        });
+    }
+
+    #[test]
+    fn make_plain_env_validates_names_and_mode_counts() {
+        for k in [1, 7] {
+            let err = make_plain_env("pusher", k).err().expect("bad n_modes");
+            assert!(
+                matches!(
+                    err,
+                    EnvError::BadParam {
+                        field: "n_modes",
+                        ..
+                    }
+                ),
+                "{err}"
+            );
+        }
+        let err = make_plain_env("traj2d", 6).err().expect("bad n_modes");
+        assert!(err.to_string().contains("n_modes = 6"), "{err}");
+        let err = make_plain_env("cartpole", 2).err().expect("unknown env");
+        assert!(matches!(err, EnvError::UnknownEnv { .. }), "{err}");
+        assert!(err.to_string().contains("pusher"), "{err}");
     }
 }

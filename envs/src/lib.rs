@@ -2,30 +2,37 @@
 //! demonstration datasets for Ess.
 //!
 //! - [`env`](mod@env): the [`Env`] contract every environment obeys, the [`ScriptedExpert`]
-//!   extension for environments with scripted multi-modal experts, and [`make_env`].
+//!   extension for environments with scripted multi-modal experts, [`make_env`] (envs
+//!   with a scripted expert) and [`make_plain_env`] (every env).
 //! - [`traj2d`]: the 2D trajectory task of the paper (Sec. 4, Fig. 1): four circular
 //!   behaviour modes through the origin.
 //! - [`reacher`]: the multi-target Reacher task (Sec. 4, "Task setup (2)") on MuJoCo:
 //!   a two-link arm, one hidden target per behaviour mode.
 //! - [`expert`]: trained expert policies (one per mode), their file format, and
 //!   [`ExpertEnv`], which drives any env with them for demonstrations.
+//! - [`pusher`]: the multi-goal Pusher task (Sec. 4, "Task setup (3)") on MuJoCo: a
+//!   7-DoF arm pushes a puck, one hidden goal per behaviour mode; no scripted expert.
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
 //! This crate never links libtorch, tokio or tonic; it links MuJoCo (through
-//! `mujoco-rs`) for [`reacher`].
+//! `mujoco-rs`) for [`reacher`] and [`pusher`].
 
 pub mod demos;
 pub mod env;
 pub mod expert;
+pub mod pusher;
 pub mod reacher;
 pub mod traj2d;
 
 pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
-pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_plain_env};
+pub use env::{
+    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_env_in, make_plain_env,
+};
 pub use expert::{ExpertEnv, ExpertError, ExpertMeta, ExpertPolicy, expert_path, experts_dir};
+pub use pusher::{Pusher, PusherConfig};
 pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};
 
