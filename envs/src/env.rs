@@ -15,11 +15,14 @@
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::locomotion::check_n_modes;
 use crate::reacher::{Reacher, ReacherConfig};
 use crate::traj2d::{Traj2D, Traj2DConfig};
+use crate::walker2d::{Walker2d, Walker2dConfig};
 
-/// Names accepted by [`make_env`].
-pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher"];
+/// Names accepted by [`make_plain_env`] (and by [`make_env`], which errors with
+/// [`EnvError::NoScriptedExpert`] for the envs without a scripted expert).
+pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher", "walker2d"];
 
 /// Static description of an environment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -104,6 +107,16 @@ pub enum EnvError {
         /// Comma-separated list of known names.
         known: String,
     },
+    /// [`make_env`] was asked for an env that has no scripted expert (its experts are
+    /// trained); [`make_plain_env`] builds it.
+    #[error(
+        "environment {name:?} has no scripted expert (its experts are PPO-trained); \
+         build it with make_plain_env"
+    )]
+    NoScriptedExpert {
+        /// Name requested.
+        name: String,
+    },
     /// A construction parameter is invalid.
     #[error("invalid parameter {field} = {value}: {reason}")]
     BadParam {
@@ -175,10 +188,12 @@ pub trait ScriptedExpert: Env {
     ) -> Result<(), EnvError>;
 }
 
-/// Builds an env by name (`"traj2d"` or `"reacher"`). `n_modes` is the requested
-/// number of behaviour modes: traj2d supports exactly 4, reacher 2 to 12 (targets);
-/// anything else is [`EnvError::BadParam`] naming `n_modes`. An unknown name is
-/// [`EnvError::UnknownEnv`], listing the known ones.
+/// Builds an env with a scripted expert by name (`"traj2d"` or `"reacher"`). `n_modes`
+/// is the requested number of behaviour modes: traj2d supports exactly 4, reacher 2 to
+/// 12 (targets); anything else is [`EnvError::BadParam`] naming `n_modes`. A known env
+/// without a scripted expert (`"walker2d"`) is
+/// [`EnvError::NoScriptedExpert`]; an unknown name is [`EnvError::UnknownEnv`], listing
+/// the known ones.
 pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, EnvError> {
     match name {
         "traj2d" => {
@@ -195,10 +210,30 @@ pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, E
             n_modes,
             ..ReacherConfig::default()
         })?)),
+        "walker2d" => Err(EnvError::NoScriptedExpert {
+            name: name.to_owned(),
+        }),
         _ => Err(EnvError::UnknownEnv {
             name: name.to_owned(),
             known: KNOWN_ENVS.join(", "),
         }),
+    }
+}
+
+/// Builds any known env by name as a plain [`Env`], with its default configuration:
+/// traj2d (exactly 4 modes), reacher (2 to 12), walker2d (exactly 3: forward,
+/// backward, balance). A bad `n_modes` is [`EnvError::BadParam`] naming it; an
+/// unknown name is [`EnvError::UnknownEnv`].
+pub fn make_plain_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
+    match name {
+        "walker2d" => {
+            check_n_modes(name, n_modes)?;
+            Ok(Box::new(Walker2d::new(Walker2dConfig::default())?))
+        }
+        _ => {
+            let env: Box<dyn Env> = make_env(name, n_modes)?;
+            Ok(env)
+        }
     }
 }
 
@@ -295,6 +330,49 @@ mod tests {
             let err = make_env("reacher", k).err().expect("bad n_modes");
             assert!(err.to_string().contains(&format!("n_modes = {k}")), "{err}");
         }
+    }
+
+    #[test]
+    fn make_plain_env_builds_every_known_env() {
+        for (name, k) in [("traj2d", 4), ("reacher", 6), ("walker2d", 3)] {
+            let env = make_plain_env(name, k).expect(name);
+            assert_eq!((env.spec().name.as_str(), env.spec().n_modes), (name, k));
+            assert!(KNOWN_ENVS.contains(&name), "{name}");
+        }
+        let err = make_plain_env("cartpole", 3).err().expect("unknown env");
+        assert!(matches!(err, EnvError::UnknownEnv { .. }), "{err}");
+    }
+
+    #[test]
+    fn make_plain_env_rejects_a_locomotion_mode_count_other_than_three() {
+        for k in [0, 2, 4] {
+            let err = make_plain_env("walker2d", k).err().expect("bad n_modes");
+            assert!(
+                matches!(
+                    err,
+                    EnvError::BadParam {
+                        field: "n_modes",
+                        ..
+                    }
+                ),
+                "{err}"
+            );
+            assert!(err.to_string().contains(&format!("n_modes = {k}")), "{err}");
+        }
+    }
+
+    #[test]
+    fn make_env_says_the_locomotion_envs_have_no_scripted_expert() {
+        let err = make_env("walker2d", 3).err().expect("no scripted expert");
+        assert!(
+            matches!(&err, EnvError::NoScriptedExpert { name } if name == "walker2d"),
+            "{err}"
+        );
+        let msg = err.to_string();
+        assert!(
+            msg.contains("walker2d") && msg.contains("no scripted expert"),
+            "{msg}"
+        );
     }
 
     #[test]
