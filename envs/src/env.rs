@@ -15,6 +15,7 @@
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::humanoid::{Humanoid, HumanoidConfig};
 use crate::locomotion::check_n_modes;
 use crate::reacher::{Reacher, ReacherConfig};
 use crate::traj2d::{Traj2D, Traj2DConfig};
@@ -22,7 +23,7 @@ use crate::walker2d::{Walker2d, Walker2dConfig};
 
 /// Names accepted by [`make_plain_env`] (and by [`make_env`], which errors with
 /// [`EnvError::NoScriptedExpert`] for the envs without a scripted expert).
-pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher", "walker2d"];
+pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher", "walker2d", "humanoid"];
 
 /// Static description of an environment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -191,7 +192,7 @@ pub trait ScriptedExpert: Env {
 /// Builds an env with a scripted expert by name (`"traj2d"` or `"reacher"`). `n_modes`
 /// is the requested number of behaviour modes: traj2d supports exactly 4, reacher 2 to
 /// 12 (targets); anything else is [`EnvError::BadParam`] naming `n_modes`. A known env
-/// without a scripted expert (`"walker2d"`) is
+/// without a scripted expert (`"walker2d"`, `"humanoid"`) is
 /// [`EnvError::NoScriptedExpert`]; an unknown name is [`EnvError::UnknownEnv`], listing
 /// the known ones.
 pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, EnvError> {
@@ -210,7 +211,7 @@ pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, E
             n_modes,
             ..ReacherConfig::default()
         })?)),
-        "walker2d" => Err(EnvError::NoScriptedExpert {
+        "walker2d" | "humanoid" => Err(EnvError::NoScriptedExpert {
             name: name.to_owned(),
         }),
         _ => Err(EnvError::UnknownEnv {
@@ -221,14 +222,18 @@ pub fn make_env(name: &str, n_modes: usize) -> Result<Box<dyn ScriptedExpert>, E
 }
 
 /// Builds any known env by name as a plain [`Env`], with its default configuration:
-/// traj2d (exactly 4 modes), reacher (2 to 12), walker2d (exactly 3: forward,
-/// backward, balance). A bad `n_modes` is [`EnvError::BadParam`] naming it; an
+/// traj2d (exactly 4 modes), reacher (2 to 12), walker2d and humanoid (exactly 3:
+/// forward, backward, balance). A bad `n_modes` is [`EnvError::BadParam`] naming it; an
 /// unknown name is [`EnvError::UnknownEnv`].
 pub fn make_plain_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
     match name {
         "walker2d" => {
             check_n_modes(name, n_modes)?;
             Ok(Box::new(Walker2d::new(Walker2dConfig::default())?))
+        }
+        "humanoid" => {
+            check_n_modes(name, n_modes)?;
+            Ok(Box::new(Humanoid::new(HumanoidConfig::default())?))
         }
         _ => {
             let env: Box<dyn Env> = make_env(name, n_modes)?;
@@ -334,7 +339,12 @@ mod tests {
 
     #[test]
     fn make_plain_env_builds_every_known_env() {
-        for (name, k) in [("traj2d", 4), ("reacher", 6), ("walker2d", 3)] {
+        for (name, k) in [
+            ("traj2d", 4),
+            ("reacher", 6),
+            ("walker2d", 3),
+            ("humanoid", 3),
+        ] {
             let env = make_plain_env(name, k).expect(name);
             assert_eq!((env.spec().name.as_str(), env.spec().n_modes), (name, k));
             assert!(KNOWN_ENVS.contains(&name), "{name}");
@@ -346,33 +356,37 @@ mod tests {
     #[test]
     fn make_plain_env_rejects_a_locomotion_mode_count_other_than_three() {
         for k in [0, 2, 4] {
-            let err = make_plain_env("walker2d", k).err().expect("bad n_modes");
-            assert!(
-                matches!(
-                    err,
-                    EnvError::BadParam {
-                        field: "n_modes",
-                        ..
-                    }
-                ),
-                "{err}"
-            );
-            assert!(err.to_string().contains(&format!("n_modes = {k}")), "{err}");
+            for name in ["walker2d", "humanoid"] {
+                let err = make_plain_env(name, k).err().expect("bad n_modes");
+                assert!(
+                    matches!(
+                        err,
+                        EnvError::BadParam {
+                            field: "n_modes",
+                            ..
+                        }
+                    ),
+                    "{err}"
+                );
+                assert!(err.to_string().contains(&format!("n_modes = {k}")), "{err}");
+            }
         }
     }
 
     #[test]
     fn make_env_says_the_locomotion_envs_have_no_scripted_expert() {
-        let err = make_env("walker2d", 3).err().expect("no scripted expert");
-        assert!(
-            matches!(&err, EnvError::NoScriptedExpert { name } if name == "walker2d"),
-            "{err}"
-        );
-        let msg = err.to_string();
-        assert!(
-            msg.contains("walker2d") && msg.contains("no scripted expert"),
-            "{msg}"
-        );
+        for env in ["walker2d", "humanoid"] {
+            let err = make_env(env, 3).err().expect("no scripted expert");
+            assert!(
+                matches!(&err, EnvError::NoScriptedExpert { name } if name == env),
+                "{err}"
+            );
+            let msg = err.to_string();
+            assert!(
+                msg.contains(env) && msg.contains("no scripted expert"),
+                "{msg}"
+            );
+        }
     }
 
     #[test]

@@ -13,6 +13,8 @@
 //! - [`walker2d`]: Walker-2D (Sec. 4, "Task setup (4)") on MuJoCo, Gymnasium
 //!   Walker2d-v5's model and spaces with three behaviour modes; no scripted expert
 //!   (its experts are PPO-trained).
+//! - [`humanoid`]: Humanoid (Sec. 4, "Task setup (5)") on MuJoCo, Gymnasium
+//!   Humanoid-v5's model and spaces with the same three modes; no scripted expert.
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
@@ -21,6 +23,7 @@
 
 pub mod demos;
 pub mod env;
+pub mod humanoid;
 pub mod locomotion;
 pub mod reacher;
 pub mod traj2d;
@@ -30,6 +33,7 @@ pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
 pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_plain_env};
+pub use humanoid::{Humanoid, HumanoidConfig};
 pub use locomotion::LocoMode;
 pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};

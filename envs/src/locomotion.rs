@@ -1,4 +1,4 @@
-//! What the MuJoCo locomotion envs ([`crate::walker2d`], `crate::humanoid`) share:
+//! What the MuJoCo locomotion envs ([`crate::walker2d`], [`crate::humanoid`]) share:
 //! the three behaviour modes of the paper's Walker-2D and Humanoid tasks (Sec. 4,
 //! Fig. 4), their per-mode reward, the healthy-range test, and the simulation core
 //! (model loading and shape checks, seeded reset noise, action scaling, frame skip,
@@ -400,9 +400,10 @@ impl Sim {
     }
 }
 
-/// Converts `src` to `f32` into the front of `dst`; returns the rest of `dst`.
+/// Converts `src` to `f32` into the front of `dst` (as much as fits); returns the
+/// rest of `dst`.
 pub(crate) fn put<'a>(dst: &'a mut [f32], src: &[f64]) -> &'a mut [f32] {
-    let (head, rest) = dst.split_at_mut(src.len());
+    let (head, rest) = dst.split_at_mut(src.len().min(dst.len()));
     for (o, x) in head.iter_mut().zip(src) {
         *o = *x as f32;
     }
