@@ -308,12 +308,6 @@ impl Walker2d {
         self.terms.reward(mode, &self.weights)
     }
 
-    /// Runs one raw `mj_step` with the current controls (for speed measurements).
-    #[doc(hidden)]
-    pub fn raw_mj_step(&mut self) {
-        self.sim.data.step();
-    }
-
     fn write_obs(&self, obs: &mut [f32]) {
         let rest = put(obs, &self.sim.data.qpos()[1..]);
         let clip = self.cfg.qvel_clip;
