@@ -15,13 +15,16 @@
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::humanoid::{Humanoid, HumanoidConfig};
+use crate::locomotion::check_n_modes;
 use crate::pusher::{Pusher, PusherConfig};
 use crate::reacher::{Reacher, ReacherConfig};
 use crate::traj2d::{Traj2D, Traj2DConfig};
+use crate::walker2d::{Walker2d, Walker2dConfig};
 
-/// Names of every environment: all are built by [`make_plain_env`], those with a
-/// scripted expert (all but `"pusher"`) also by [`make_env`].
-pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher", "pusher"];
+/// Names of every environment: all are built by [`make_plain_env`] and by [`make_env`]
+/// (traj2d and reacher with scripted experts, the others with trained ones).
+pub const KNOWN_ENVS: &[&str] = &["traj2d", "reacher", "pusher", "walker2d", "humanoid"];
 
 /// Static description of an environment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -206,7 +209,7 @@ pub fn make_env_in(
     experts_dir: &std::path::Path,
 ) -> Result<Box<dyn ScriptedExpert>, EnvError> {
     match name {
-        "pusher" => {
+        "pusher" | "walker2d" | "humanoid" => {
             let plain = make_plain_env(name, n_modes)?;
             let env = crate::ExpertEnv::load(plain, experts_dir).map_err(|e| {
                 EnvError::NoScriptedExpert {
@@ -237,15 +240,24 @@ pub fn make_env_in(
     }
 }
 
-/// Builds any known env by name as a plain [`Env`] (no expert): everything
-/// [`make_env`] builds, plus `"pusher"` (2 to 6 goals). `n_modes` is validated as in
-/// [`make_env`]; an unknown name is [`EnvError::UnknownEnv`].
+/// Builds any known env by name as a plain [`Env`] (no expert), with its default
+/// configuration: traj2d (exactly 4 modes), reacher (2 to 12), pusher (2 to 6 goals),
+/// walker2d and humanoid (exactly 3: forward, backward, balance). A bad `n_modes` is
+/// [`EnvError::BadParam`] naming it; an unknown name is [`EnvError::UnknownEnv`].
 pub fn make_plain_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
     match name {
         "pusher" => Ok(Box::new(Pusher::new(PusherConfig {
             n_modes,
             ..PusherConfig::default()
         })?)),
+        "walker2d" => {
+            check_n_modes(name, n_modes)?;
+            Ok(Box::new(Walker2d::new(Walker2dConfig::default())?))
+        }
+        "humanoid" => {
+            check_n_modes(name, n_modes)?;
+            Ok(Box::new(Humanoid::new(HumanoidConfig::default())?))
+        }
         _ => {
             let env: Box<dyn Env> = make_env(name, n_modes)?;
             Ok(env)
@@ -349,6 +361,42 @@ mod tests {
     }
 
     #[test]
+    fn make_plain_env_builds_every_known_env() {
+        for (name, k) in [
+            ("traj2d", 4),
+            ("reacher", 6),
+            ("walker2d", 3),
+            ("humanoid", 3),
+        ] {
+            let env = make_plain_env(name, k).expect(name);
+            assert_eq!((env.spec().name.as_str(), env.spec().n_modes), (name, k));
+            assert!(KNOWN_ENVS.contains(&name), "{name}");
+        }
+        let err = make_plain_env("cartpole", 3).err().expect("unknown env");
+        assert!(matches!(err, EnvError::UnknownEnv { .. }), "{err}");
+    }
+
+    #[test]
+    fn make_plain_env_rejects_a_locomotion_mode_count_other_than_three() {
+        for k in [0, 2, 4] {
+            for name in ["walker2d", "humanoid"] {
+                let err = make_plain_env(name, k).err().expect("bad n_modes");
+                assert!(
+                    matches!(
+                        err,
+                        EnvError::BadParam {
+                            field: "n_modes",
+                            ..
+                        }
+                    ),
+                    "{err}"
+                );
+                assert!(err.to_string().contains(&format!("n_modes = {k}")), "{err}");
+            }
+        }
+    }
+
+    #[test]
     fn make_env_builds_reacher_with_the_requested_number_of_targets() {
         for k in 2..=12 {
             let env = make_env("reacher", k).expect("reacher");
@@ -360,22 +408,23 @@ mod tests {
     #[test]
     fn make_env_without_trained_experts_names_the_missing_file() {
         let dir = tempfile::tempdir().expect("tmp");
-        let err = make_env_in("pusher", 6, dir.path())
-            .err()
-            .expect("no expert");
-        assert!(
-            matches!(&err, EnvError::NoScriptedExpert { name, .. } if name == "pusher"),
-            "{err}"
-        );
-        let msg = err.to_string();
-        assert!(
-            msg.contains("mode0.safetensors") && msg.contains("ess experts train"),
-            "{msg}"
-        );
+        for (env, k) in [("pusher", 6), ("walker2d", 3), ("humanoid", 3)] {
+            let err = make_env_in(env, k, dir.path()).err().expect("no expert");
+            assert!(
+                matches!(&err, EnvError::NoScriptedExpert { name, .. } if name == env),
+                "{err}"
+            );
+            let msg = err.to_string();
+            assert!(
+                msg.contains("mode0.safetensors")
+                    && msg.contains(&format!("ess experts train --env {env}")),
+                "{msg}"
+            );
+        }
     }
 
     #[test]
-    fn make_plain_env_builds_every_known_env() {
+    fn make_plain_env_builds_every_known_env_including_pusher() {
         for (name, k) in [("traj2d", 4), ("reacher", 6), ("pusher", 6), ("pusher", 2)] {
             assert!(KNOWN_ENVS.contains(&name));
             let env = make_plain_env(name, k).expect("known env builds");

@@ -12,18 +12,28 @@
 //!   [`ExpertEnv`], which drives any env with them for demonstrations.
 //! - [`pusher`]: the multi-goal Pusher task (Sec. 4, "Task setup (3)") on MuJoCo: a
 //!   7-DoF arm pushes a puck, one hidden goal per behaviour mode; no scripted expert.
+//! - [`locomotion`]: what the locomotion envs share: the three modes (run forward, run
+//!   backward, balance), their per-mode reward and the MuJoCo simulation core.
+//! - [`walker2d`]: Walker-2D (Sec. 4, "Task setup (4)") on MuJoCo, Gymnasium
+//!   Walker2d-v5's model and spaces with three behaviour modes; no scripted expert
+//!   (its experts are PPO-trained).
+//! - [`humanoid`]: Humanoid (Sec. 4, "Task setup (5)") on MuJoCo, Gymnasium
+//!   Humanoid-v5's model and spaces with the same three modes; no scripted expert.
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
 //! This crate never links libtorch, tokio or tonic; it links MuJoCo (through
-//! `mujoco-rs`) for [`reacher`] and [`pusher`].
+//! `mujoco-rs`) for [`reacher`], [`pusher`] and the locomotion envs.
 
 pub mod demos;
 pub mod env;
 pub mod expert;
+pub mod humanoid;
+pub mod locomotion;
 pub mod pusher;
 pub mod reacher;
 pub mod traj2d;
+pub mod walker2d;
 
 pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
@@ -32,9 +42,12 @@ pub use env::{
     Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_env_in, make_plain_env,
 };
 pub use expert::{ExpertEnv, ExpertError, ExpertMeta, ExpertPolicy, expert_path, experts_dir};
+pub use humanoid::{Humanoid, HumanoidConfig};
+pub use locomotion::LocoMode;
 pub use pusher::{Pusher, PusherConfig};
 pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};
+pub use walker2d::{Walker2d, Walker2dConfig};
 
 /// Writes `bytes` to `path` atomically: a temporary file in the same directory is
 /// written, synced and renamed over `path`, so no half-written file is ever seen. On
