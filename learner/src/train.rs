@@ -483,11 +483,20 @@ pub fn run(
 
         // --- reward, GAE, PPO --------------------------------------------------------
         let t2 = Instant::now();
+        let info_w = if m.info_reward_warmup_iters == 0 {
+            1.0
+        } else {
+            ((it as f64) / m.info_reward_warmup_iters as f64).min(1.0)
+        };
         let rw = RewardWeights {
             disc_logit: m.disc_reward == ess_proto::config::DiscReward::Logit,
             disc: m.reward_disc,
-            qc: m.reward_qc,
-            qeps: if m.use_eps { m.reward_qeps } else { 0.0 },
+            qc: m.reward_qc * info_w,
+            qeps: if m.use_eps {
+                m.reward_qeps * info_w
+            } else {
+                0.0
+            },
         };
         let next_n = norm_obs(&all.next_obs, &obs_mean, &obs_std);
         let eps_col = column(&all.eps);

@@ -186,6 +186,12 @@ pub struct MethodConfig {
     pub rim_prior_grad: bool,
     /// RIM weight ramps linearly from 0 to `w_rim` over this many iterations.
     pub rim_warmup_iters: usize,
+    /// Iterations over which the policy's information rewards (`reward_qc`,
+    /// `reward_qeps`) ramp linearly from 0 to their full weight (0 = full from the
+    /// start). On Reacher the log Q_c reward of a still-random policy swamps the
+    /// imitation reward; the reference code likewise starts its information terms
+    /// after a warm-up ("begin_weight").
+    pub info_reward_warmup_iters: usize,
     /// Policy reward weight of log Q_c(c | s, a) (lambda_2 in Eq. 9 / Eq. 5 for pi).
     /// 4 (not 1): on Traj2D with imbalance 100, weaker weights let the discriminator
     /// pull the minority codes onto the majority modes (bench/README.md, tuning notes).
@@ -227,6 +233,7 @@ impl Default for MethodConfig {
             rim_l2: 1e-4,
             rim_prior_grad: false,
             rim_warmup_iters: 20,
+            info_reward_warmup_iters: 0,
             reward_qc: 4.0,
             reward_qeps: 0.5,
             reward_disc: 1.0,

@@ -1,0 +1,124 @@
+//! `ess experts` as a user runs it: training writes a valid expert file that `eval`
+//! reads back and scores against random actions; a mode out of range and an expert of
+//! another task are input errors (exit 2) naming what is wrong.
+
+use ess_tests::ess;
+
+fn stderr(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Settings that make expert training take a second.
+const QUICK: &[&str] = &[
+    "--steps",
+    "800",
+    "--set",
+    "run.rollout_steps=400",
+    "--set",
+    "ppo.epochs=2",
+    "--set",
+    "ppo.minibatch=200",
+    "--set",
+    "run.torch_threads=1",
+];
+
+fn train(dir: &std::path::Path, env: &str, n_modes: &str, mode: usize) -> std::path::PathBuf {
+    let out = dir.join(env).join(format!("mode{mode}.safetensors"));
+    let mode_s = mode.to_string();
+    let out_s = out.to_string_lossy().into_owned();
+    let mut args = vec![
+        "experts", "train", "--env", env, "--set", n_modes, "--mode", &mode_s, "--out", &out_s,
+    ];
+    args.extend_from_slice(QUICK);
+    let o = ess(&args);
+    assert!(o.status.success(), "experts train failed: {}", stderr(&o));
+    out
+}
+
+#[test]
+fn experts_train_then_eval_reports_every_mode_against_random() {
+    let dir = tempfile::tempdir().unwrap();
+    for mode in 0..2 {
+        let out = train(dir.path(), "reacher", "env.n_modes=2", mode);
+        assert!(out.exists());
+        assert!(
+            dir.path()
+                .join(format!("reacher/mode{mode}.safetensors.csv"))
+                .exists()
+        );
+    }
+    let d = dir.path().to_string_lossy().into_owned();
+    let o = ess(&[
+        "experts",
+        "eval",
+        "--env",
+        "reacher",
+        "--set",
+        "env.n_modes=2",
+        "--dir",
+        &d,
+        "--episodes",
+        "2",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json rows");
+    let rows = rows.as_array().expect("array");
+    assert_eq!(rows.len(), 2);
+    for r in rows {
+        assert!(r["expert_return"].as_f64().expect("number").is_finite());
+        assert!(r["random_return"].as_f64().expect("number").is_finite());
+    }
+    // Resuming continues the step count.
+    let out = dir.path().join("reacher/mode0.safetensors");
+    let out_s = out.to_string_lossy().into_owned();
+    let mut args = vec![
+        "experts",
+        "train",
+        "--env",
+        "reacher",
+        "--set",
+        "env.n_modes=2",
+        "--mode",
+        "0",
+        "--out",
+        &out_s,
+        "--resume",
+    ];
+    args.extend_from_slice(QUICK);
+    let steps_at = args.len() - QUICK.len() + 1;
+    args[steps_at] = "1600";
+    let o = ess(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("1600 steps"),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+}
+
+#[test]
+fn a_mode_out_of_range_is_an_input_error_naming_it() {
+    let o = ess(&["experts", "train", "--env", "walker2d", "--mode", "3"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--mode 3"), "{}", stderr(&o));
+}
+
+#[test]
+fn an_expert_of_another_task_is_an_input_error_naming_both() {
+    let dir = tempfile::tempdir().unwrap();
+    let reacher = train(dir.path(), "reacher", "env.n_modes=3", 0);
+    let walker = dir.path().join("walker2d");
+    std::fs::create_dir_all(&walker).unwrap();
+    for k in 0..3 {
+        std::fs::copy(&reacher, walker.join(format!("mode{k}.safetensors"))).unwrap();
+    }
+    let d = dir.path().to_string_lossy().into_owned();
+    let o = ess(&["experts", "eval", "--env", "walker2d", "--dir", &d]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("env = reacher") && err.contains("walker2d") && err.contains("mode0"),
+        "{err}"
+    );
+}
