@@ -273,7 +273,8 @@ pub struct PpoConfig {
     pub log_std_init: f64,
     /// Divide rewards by the running standard deviation of the discounted return
     /// before GAE (as common PPO implementations do), so the value targets stay near
-    /// unit scale whatever the reward's scale (e.g. D logits of -20 on Reacher).
+    /// unit scale whatever the reward's scale (e.g. D logits of -20 on Reacher). Off by
+    /// default (Traj2D's measured results); the MuJoCo env defaults turn it on.
     pub normalize_rewards: bool,
 }
 
@@ -292,7 +293,7 @@ impl Default for PpoConfig {
             value_coef: 0.5,
             max_grad_norm: 0.5,
             log_std_init: -0.5,
-            normalize_rewards: true,
+            normalize_rewards: false,
         }
     }
 }

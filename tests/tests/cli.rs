@@ -161,3 +161,24 @@ fn every_preset_trains_a_few_iterations_and_writes_its_outputs() {
         assert_eq!(csv.lines().count(), 1 + 2 + 1, "{p}: {csv}");
     }
 }
+
+#[test]
+fn env_defaults_apply_under_the_preset_and_set_overrides_them() {
+    let out = |args: &[&str]| String::from_utf8_lossy(&ess(args).stdout).into_owned();
+    let reacher = out(&["train", "--env", "reacher", "--print-config"]);
+    assert!(reacher.contains("n_modes = 6"), "{reacher}");
+    assert!(reacher.contains("label_ratio = 0.005"), "{reacher}");
+    let humanoid = out(&["train", "--env", "humanoid", "--print-config"]);
+    assert!(humanoid.contains("n_modes = 3") && humanoid.contains("label_ratio = 0.02"));
+    let set = out(&[
+        "train",
+        "--env",
+        "reacher",
+        "--set",
+        "env.n_modes=4",
+        "--print-config",
+    ]);
+    assert!(set.contains("n_modes = 4"), "{set}");
+    let traj = out(&["train", "--print-config"]);
+    assert!(traj.contains("n_modes = 4") && traj.contains("label_ratio = 0.01"));
+}
