@@ -282,7 +282,11 @@ pub fn run(
     let n_lab = demos.labeled.len() as i64;
 
     progress.message("behaviour classifier");
-    let reference = build_reference(eval_env.as_mut(), 20, cfg.demos.seed ^ 0xC1A5)?;
+    let reference = build_reference(
+        eval_env.as_mut(),
+        cfg.run.reference_episodes.max(1),
+        cfg.demos.seed ^ 0xC1A5,
+    )?;
 
     let m = &cfg.method;
     let latent = LatentSpec {

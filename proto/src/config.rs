@@ -343,6 +343,9 @@ pub struct RunConfig {
     pub eval_episodes: usize,
     /// Evaluation episodes per code for the periodic evaluations.
     pub eval_episodes_periodic: usize,
+    /// Expert episodes per mode behind the evaluation reference (behaviour classifier
+    /// training data and expert returns).
+    pub reference_episodes: usize,
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: usize,
 }
@@ -358,6 +361,7 @@ impl Default for RunConfig {
             eval_every: 25,
             eval_episodes: 50,
             eval_episodes_periodic: 10,
+            reference_episodes: 20,
             checkpoint_every: 100,
         }
     }

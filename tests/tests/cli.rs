@@ -182,3 +182,26 @@ fn env_defaults_apply_under_the_preset_and_set_overrides_them() {
     let traj = out(&["train", "--print-config"]);
     assert!(traj.contains("n_modes = 4") && traj.contains("label_ratio = 0.01"));
 }
+
+#[test]
+fn every_mujoco_env_trains_a_few_iterations_from_its_shipped_experts() {
+    for env in ["reacher", "pusher", "walker2d", "humanoid"] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        let mut args = vec!["train", "--env", env, "--out", out.to_str().unwrap()];
+        args.extend_from_slice(SMOKE);
+        args.extend_from_slice(&[
+            "--set",
+            "demos.majority_episodes=2",
+            "--set",
+            "run.reference_episodes=2",
+        ]);
+        let o = ess(&args);
+        assert!(o.status.success(), "{env}: {}", stderr(&o));
+        let s: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(s["env"], env);
+        assert!(s["nmi"].as_f64().unwrap().is_finite(), "{env}: {s}");
+    }
+}
