@@ -160,9 +160,12 @@ fn resolve(args: &ConfigArgs) -> Result<CheckedConfig> {
 
 fn resolve_with(args: &ConfigArgs, env_layer: Option<(&str, &str)>) -> Result<CheckedConfig> {
     let mut b = ConfigBuilder::new();
-    if let Some((env, text)) = env_layer {
-        b.merge_toml(&format!("env defaults {env}"), text)
-            .map_err(input_err)?;
+    let env_layer = env_layer
+        .map(|(env, text)| presets::parse_env_layer(env, text))
+        .transpose()
+        .map_err(input_err)?;
+    if let Some(layer) = &env_layer {
+        b.merge_env_layer(layer).map_err(input_err)?;
     }
     let (name, text) = if args.preset.ends_with(".toml") || args.preset.contains('/') {
         let text = std::fs::read_to_string(&args.preset)
@@ -175,6 +178,9 @@ fn resolve_with(args: &ConfigArgs, env_layer: Option<(&str, &str)>) -> Result<Ch
         )
     };
     b.merge_toml(&name, &text).map_err(input_err)?;
+    if let Some(layer) = &env_layer {
+        b.merge_env_method_layer(layer).map_err(input_err)?;
+    }
     if let Some(f) = &args.config {
         let text = std::fs::read_to_string(f)
             .map_err(|e| input_err(format!("cannot read config file {}: {e}", f.display())))?;

@@ -29,7 +29,8 @@ pub const PRESETS: &[(&str, &str)] = &[
 
 /// `(env, toml)`: per-environment defaults (`deploy/envs/*.toml`): mode count and the
 /// paper's label ratio. They apply over the built-in defaults and under the method
-/// preset, the config file and `--set`.
+/// preset, the config file and `--set`; their `[per_method.<name>]` tables apply over
+/// that method's preset (still under the file and `--set`).
 pub const ENV_DEFAULTS: &[(&str, &str)] = &[
     ("traj2d", include_str!("../../deploy/envs/traj2d.toml")),
     ("reacher", include_str!("../../deploy/envs/reacher.toml")),
@@ -44,6 +45,21 @@ pub fn env_defaults(env: &str) -> Option<&'static str> {
         .iter()
         .find(|(n, _)| *n == env)
         .map(|(_, t)| *t)
+}
+
+/// Parses the defaults layer of `env`, checking that each of its `[per_method.<name>]`
+/// tables names a known preset.
+pub fn parse_env_layer(env: &str, text: &str) -> Result<ess_proto::config::EnvLayer, String> {
+    let source = format!("env defaults {env}");
+    let layer = ess_proto::config::EnvLayer::parse(&source, text).map_err(|e| e.to_string())?;
+    if let Some(bad) = layer.methods().find(|m| preset(m).is_err()) {
+        let known: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+        return Err(format!(
+            "{source}: `per_method.{bad}` is not a method; known methods: {}",
+            known.join(", ")
+        ));
+    }
+    Ok(layer)
 }
 
 /// The TOML of preset `name`, or an error listing the known ones.
@@ -146,6 +162,69 @@ mod tests {
             Some((0.662, 0.587))
         );
         assert_eq!(paper_table1("mars", "gail"), None);
+    }
+
+    #[test]
+    fn every_env_layer_builds_a_valid_config_under_every_preset() {
+        for (env, layer_text) in ENV_DEFAULTS {
+            let layer = parse_env_layer(env, layer_text).unwrap();
+            for (name, text) in PRESETS {
+                let mut b = ConfigBuilder::new();
+                b.merge_env_layer(&layer).unwrap();
+                b.merge_toml(name, text).unwrap();
+                b.merge_env_method_layer(&layer).unwrap();
+                let c = b.build().unwrap_or_else(|e| panic!("{env} + {name}: {e}"));
+                assert_eq!(c.method.name, *name, "{env}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_per_method_table_applies_over_its_preset_only() {
+        let text =
+            "[method]\nreward_qeps = 0.3\n[per_method.ess-infogail.method]\nreward_qc = 0.7\n";
+        let layer = parse_env_layer("toy", text).unwrap();
+        let build = |preset_name: &str| {
+            let mut b = ConfigBuilder::new();
+            b.merge_env_layer(&layer).unwrap();
+            b.merge_toml(preset_name, preset(preset_name).unwrap())
+                .unwrap();
+            b.merge_env_method_layer(&layer).unwrap();
+            b.set("method.reward_qeps=0.2").unwrap();
+            b.build().unwrap()
+        };
+        let ess = build("ess-infogail");
+        assert_eq!(ess.method.reward_qc, 0.7);
+        // The preset's own value wins over the method-independent env key; --set wins
+        // over everything.
+        assert_eq!(ess.method.reward_qeps, 0.2);
+        let info = build("infogail");
+        assert_ne!(info.method.reward_qc, 0.7);
+    }
+
+    #[test]
+    fn a_per_method_table_for_an_unknown_method_is_named() {
+        let e = parse_env_layer(
+            "reacher",
+            "[per_method.essinfogail.method]\nreward_qc = 1.0\n",
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("per_method.essinfogail") && e.contains("env defaults reacher"),
+            "{e}"
+        );
+        let e = parse_env_layer("reacher", "per_method = 3\n").unwrap_err();
+        assert!(e.contains("`per_method` must be a table"), "{e}");
+        // A bad key inside the table is named with the table it came from.
+        let layer =
+            parse_env_layer("reacher", "[per_method.gail.method]\nreward_q = 1.0\n").unwrap();
+        let mut b = ConfigBuilder::new();
+        b.merge_toml("gail", preset("gail").unwrap()).unwrap();
+        let e = b.merge_env_method_layer(&layer).unwrap_err().to_string();
+        assert!(
+            e.contains("method.reward_q") && e.contains("[per_method.gail]"),
+            "{e}"
+        );
     }
 
     #[test]

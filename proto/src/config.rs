@@ -403,6 +403,61 @@ impl CheckedConfig {
     }
 }
 
+/// An environment's defaults layer (`deploy/envs/<env>.toml`): keys that hold for every
+/// method, plus optional `[per_method.<method name>.<section>]` tables that hold for one
+/// method only (e.g. Reacher's information-reward weights for Ess-InfoGAIL).
+#[derive(Debug, Clone)]
+pub struct EnvLayer {
+    source_name: String,
+    base: toml::Table,
+    per_method: std::collections::BTreeMap<String, toml::Table>,
+}
+
+impl EnvLayer {
+    /// Parses a layer; `source_name` names it in error messages. `per_method` must be a
+    /// table of tables, one per method name (the names are checked by the caller, who
+    /// knows the presets).
+    pub fn parse(source_name: &str, text: &str) -> Result<Self, ConfigError> {
+        let mut base: toml::Table =
+            text.parse()
+                .map_err(|e: toml::de::Error| ConfigError::Parse {
+                    source_name: source_name.to_string(),
+                    message: e.message().to_string(),
+                })?;
+        let mut per_method = std::collections::BTreeMap::new();
+        if let Some(v) = base.remove("per_method") {
+            let toml::Value::Table(t) = v else {
+                return Err(ConfigError::Parse {
+                    source_name: source_name.to_string(),
+                    message: format!("`per_method` must be a table, found {}", type_name(&v)),
+                });
+            };
+            for (name, v) in t {
+                let toml::Value::Table(m) = v else {
+                    return Err(ConfigError::Parse {
+                        source_name: source_name.to_string(),
+                        message: format!(
+                            "`per_method.{name}` must be a table, found {}",
+                            type_name(&v)
+                        ),
+                    });
+                };
+                per_method.insert(name, m);
+            }
+        }
+        Ok(Self {
+            source_name: source_name.to_string(),
+            base,
+            per_method,
+        })
+    }
+
+    /// The method names that have their own table.
+    pub fn methods(&self) -> impl Iterator<Item = &str> {
+        self.per_method.keys().map(String::as_str)
+    }
+}
+
 /// Builds a configuration from layers of TOML tables over the defaults.
 #[derive(Debug, Clone)]
 pub struct ConfigBuilder {
@@ -432,6 +487,32 @@ impl ConfigBuilder {
                 message: e.message().to_string(),
             })?;
         merge_table(&mut self.table, layer, "", source_name)?;
+        Ok(self)
+    }
+
+    /// Merges the method-independent part of an environment's defaults layer (all of
+    /// it but its `[per_method]` table).
+    pub fn merge_env_layer(&mut self, layer: &EnvLayer) -> Result<&mut Self, ConfigError> {
+        merge_table(&mut self.table, layer.base.clone(), "", &layer.source_name)?;
+        Ok(self)
+    }
+
+    /// Merges the env layer's `[per_method.<name>]` table for the method selected so
+    /// far (`method.name`, set by the preset), if it has one. Call it right after the
+    /// preset: an env's tuning of one method then sits over that method's preset and
+    /// under the config file and `--set`.
+    pub fn merge_env_method_layer(&mut self, layer: &EnvLayer) -> Result<&mut Self, ConfigError> {
+        let name = self
+            .table
+            .get("method")
+            .and_then(|m| m.get("name"))
+            .and_then(|n| n.as_str())
+            .unwrap_or_default()
+            .to_string();
+        if let Some(t) = layer.per_method.get(&name) {
+            let source = format!("{} [per_method.{name}]", layer.source_name);
+            merge_table(&mut self.table, t.clone(), "", &source)?;
+        }
         Ok(self)
     }
 
