@@ -324,6 +324,17 @@ fn train(args: TrainArgs) -> Result<()> {
             .join(" ")
     );
     println!(
+        "Q_c accuracy       {:.3} balanced, {:.3} overall on the unlabeled demos (per mode {})",
+        s.encoder_accuracy.balanced,
+        s.encoder_accuracy.overall,
+        s.encoder_accuracy
+            .per_mode
+            .iter()
+            .map(|p| format!("{p:.2}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!(
         "training           {} iterations, {} env steps, {:.1} s ({:.0} env steps/s); total {:.1} s",
         s.iterations, s.env_steps, s.wall_seconds, s.env_steps_per_second, s.total_seconds
     );

@@ -125,10 +125,64 @@ pub struct Summary {
     pub prior: Vec<f32>,
     /// Behaviour classifier's held-out accuracy on expert data.
     pub classifier_accuracy: f64,
+    /// Q_c's accuracy on the unlabeled expert data against the true modes (paper
+    /// Fig. 6): how well the few labels taught the encoder.
+    pub encoder_accuracy: EncoderAccuracy,
     /// Final evaluation in full.
     pub eval: EvalResult,
     /// Whether the run was stopped early (Ctrl-C).
     pub interrupted: bool,
+}
+
+/// Accuracy of `argmax Q_c(s, a)` against the true mode on expert data.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct EncoderAccuracy {
+    /// Over all steps (dominated by the majority modes).
+    pub overall: f64,
+    /// Mean of the per-mode recalls (every mode counts the same).
+    pub balanced: f64,
+    /// Recall of each mode (NaN-free: a mode without steps reports 0).
+    pub per_mode: Vec<f64>,
+}
+
+/// [`EncoderAccuracy`] of `disc`'s Q_c head on inputs `x` (`[n, obs+act]`, normalised)
+/// with true modes `mode` (`[n]`, int64), in batches so memory stays flat.
+fn encoder_accuracy(disc: &Discriminator, x: &Tensor, mode: &Tensor, k: usize) -> EncoderAccuracy {
+    let n = x.size()[0];
+    let mut hits = vec![0u64; k];
+    let mut counts = vec![0u64; k];
+    let _guard = tch::no_grad_guard();
+    let mut start = 0;
+    while start < n {
+        let len = (n - start).min(65_536);
+        let pred = disc
+            .forward(&x.narrow(0, start, len))
+            .qc_logits
+            .argmax(-1, false);
+        let truth = mode.narrow(0, start, len);
+        let p: Vec<i64> = Vec::try_from(&pred).unwrap_or_default();
+        let t: Vec<i64> = Vec::try_from(&truth).unwrap_or_default();
+        for (p, t) in p.iter().zip(&t) {
+            if let Ok(t) = usize::try_from(*t) {
+                if t < k {
+                    counts[t] += 1;
+                    hits[t] += u64::from(p == &(t as i64));
+                }
+            }
+        }
+        start += len;
+    }
+    let per_mode: Vec<f64> = hits
+        .iter()
+        .zip(&counts)
+        .map(|(&h, &c)| if c == 0 { 0.0 } else { h as f64 / c as f64 })
+        .collect();
+    let total: u64 = counts.iter().sum();
+    EncoderAccuracy {
+        overall: hits.iter().sum::<u64>() as f64 / total.max(1) as f64,
+        balanced: per_mode.iter().sum::<f64>() / k.max(1) as f64,
+        per_mode,
+    }
 }
 
 /// Per-phase seconds.
@@ -668,6 +722,7 @@ pub fn run(
         },
         prior: ppo.prior_probs(),
         classifier_accuracy: reference.classifier_accuracy,
+        encoder_accuracy: encoder_accuracy(&disc, &expert.unlabeled, &expert.unlabeled_mode, k),
         eval: result,
         interrupted,
     };
