@@ -504,7 +504,10 @@ impl Env for Humanoid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::env::conformance::{check_env, random_rollout};
+    use crate::env::conformance::{
+        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf, check_env,
+        random_rollout,
+    };
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -840,111 +843,47 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let d = HumanoidConfig::default;
-        let cases: Vec<(HumanoidConfig, &str)> = vec![
-            (
-                HumanoidConfig {
-                    max_steps: 0,
-                    ..d()
-                },
-                "max_steps",
-            ),
-            (
-                HumanoidConfig {
-                    frame_skip: 0,
-                    ..d()
-                },
-                "frame_skip",
-            ),
-            (
-                HumanoidConfig {
-                    healthy_reward: -5.0,
-                    ..d()
-                },
-                "healthy_reward",
-            ),
-            (
-                HumanoidConfig {
-                    forward_weight: f64::NAN,
-                    ..d()
-                },
-                "forward_weight",
-            ),
-            (
-                HumanoidConfig {
-                    ctrl_cost_weight: -0.1,
-                    ..d()
-                },
-                "ctrl_cost_weight",
-            ),
-            (
-                HumanoidConfig {
-                    contact_cost_weight: -1.0,
-                    ..d()
-                },
-                "contact_cost_weight",
-            ),
-            (
-                HumanoidConfig {
-                    contact_cost_max: f64::INFINITY,
-                    ..d()
-                },
-                "contact_cost_max",
-            ),
-            (
-                HumanoidConfig {
-                    healthy_z_range: [1.0, 1.0],
-                    ..d()
-                },
-                "healthy_z_range",
-            ),
-            (
-                HumanoidConfig {
-                    reset_noise_scale: f64::NAN,
-                    ..d()
-                },
-                "reset_noise_scale",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Humanoid::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
+        assert_bad_params::<HumanoidConfig, _>(
+            Humanoid::new,
+            &[
+                ("max_steps", |c| c.max_steps = 0),
+                ("frame_skip", |c| c.frame_skip = 0),
+                ("healthy_reward", |c| c.healthy_reward = -5.0),
+                ("forward_weight", |c| c.forward_weight = f64::NAN),
+                ("ctrl_cost_weight", |c| c.ctrl_cost_weight = -0.1),
+                ("contact_cost_weight", |c| c.contact_cost_weight = -1.0),
+                ("contact_cost_max", |c| c.contact_cost_max = f64::INFINITY),
+                ("healthy_z_range", |c| c.healthy_z_range = [1.0, 1.0]),
+                ("reset_noise_scale", |c| c.reset_noise_scale = f64::NAN),
+            ],
+        );
     }
 
     #[test]
     fn a_malformed_mjcf_string_is_a_clear_model_error() {
-        let err = Humanoid::from_mjcf("<mujoco><worldbody><body>", HumanoidConfig::default())
-            .expect_err("malformed");
-        assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        let msg = err.to_string();
-        assert!(
-            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
-            "{msg}"
-        );
+        assert_malformed_mjcf(|xml| Humanoid::from_mjcf(xml, HumanoidConfig::default()));
     }
 
     #[test]
     fn an_mjcf_of_the_wrong_shape_is_a_model_error_saying_what_is_wrong() {
-        let cfg = HumanoidConfig::default;
-        let no_torso = HUMANOID_MJCF.replace("name=\"torso\"", "name=\"chest\"");
-        let err = Humanoid::from_mjcf(&no_torso, cfg()).expect_err("no torso");
-        assert!(err.to_string().contains("torso"), "{err}");
-        let no_elbow_motor = HUMANOID_MJCF.replace(
-            "<motor name=\"left_elbow\" joint=\"left_elbow\" gear=\"25\"/>",
-            "",
+        let m = HUMANOID_MJCF;
+        assert_wrong_shape_mjcf(
+            |xml| Humanoid::from_mjcf(xml, HumanoidConfig::default()),
+            &[
+                (m.replace("name=\"torso\"", "name=\"chest\""), "torso"),
+                (
+                    m.replace(
+                        "<motor name=\"left_elbow\" joint=\"left_elbow\" gear=\"25\"/>",
+                        "",
+                    ),
+                    "nu = 16",
+                ),
+                (m.replace("<freejoint name=\"root\"/>", ""), "nq = 17"),
+                (
+                    m.replace("<motor ctrlrange=\"-0.4 0.4\"/>", ""),
+                    "ctrlrange",
+                ),
+            ],
         );
-        let err = Humanoid::from_mjcf(&no_elbow_motor, cfg()).expect_err("nu");
-        assert!(err.to_string().contains("nu = 16"), "{err}");
-        let no_root = HUMANOID_MJCF.replace("<freejoint name=\"root\"/>", "");
-        let err = Humanoid::from_mjcf(&no_root, cfg()).expect_err("nq");
-        assert!(err.to_string().contains("nq = 17"), "{err}");
-        let unlimited = HUMANOID_MJCF.replace("<motor ctrlrange=\"-0.4 0.4\"/>", "");
-        let err = Humanoid::from_mjcf(&unlimited, cfg()).expect_err("ctrlrange");
-        assert!(err.to_string().contains("ctrlrange"), "{err}");
     }
 }

@@ -654,6 +654,9 @@ impl Env for Pusher {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::conformance::{
+        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf,
+    };
     use rand_distr::StandardNormal;
 
     /// A kinematic pose of the fork: where the crossbar centre is, and its axes.
@@ -1168,101 +1171,28 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let d = PusherConfig::default;
-        let cases: Vec<(PusherConfig, &str)> = vec![
-            (PusherConfig { n_modes: 1, ..d() }, "n_modes"),
-            (PusherConfig { n_modes: 7, ..d() }, "n_modes"),
-            (
-                PusherConfig {
-                    goal_radius: 0.3,
-                    ..d()
-                },
-                "goal_radius",
-            ),
-            (
-                PusherConfig {
-                    goal_radius: 0.05,
-                    ..d()
-                },
-                "goal_radius",
-            ),
-            (
-                PusherConfig {
-                    goal_radius: f64::NAN,
-                    ..d()
-                },
-                "goal_radius",
-            ),
-            (
-                PusherConfig {
-                    goal_arc: 0.0,
-                    ..d()
-                },
-                "goal_arc",
-            ),
-            (
-                PusherConfig {
-                    goal_arc: 4.0,
-                    ..d()
-                },
-                "goal_arc",
-            ),
-            (
-                PusherConfig {
-                    max_steps: 0,
-                    ..d()
-                },
-                "max_steps",
-            ),
-            (
-                PusherConfig {
-                    frame_skip: 0,
-                    ..d()
-                },
-                "frame_skip",
-            ),
-            (
-                PusherConfig {
-                    init_qpos_noise: -0.1,
-                    ..d()
-                },
-                "init_qpos_noise",
-            ),
-            (
-                PusherConfig {
-                    init_qvel_noise: f64::INFINITY,
-                    ..d()
-                },
-                "init_qvel_noise",
-            ),
-            (
-                PusherConfig {
-                    object_init_noise: 0.1,
-                    ..d()
-                },
-                "object_init_noise",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Pusher::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
+        assert_bad_params::<PusherConfig, _>(
+            Pusher::new,
+            &[
+                ("n_modes", |c| c.n_modes = 1),
+                ("n_modes", |c| c.n_modes = 7),
+                ("goal_radius", |c| c.goal_radius = 0.3),
+                ("goal_radius", |c| c.goal_radius = 0.05),
+                ("goal_radius", |c| c.goal_radius = f64::NAN),
+                ("goal_arc", |c| c.goal_arc = 0.0),
+                ("goal_arc", |c| c.goal_arc = 4.0),
+                ("max_steps", |c| c.max_steps = 0),
+                ("frame_skip", |c| c.frame_skip = 0),
+                ("init_qpos_noise", |c| c.init_qpos_noise = -0.1),
+                ("init_qvel_noise", |c| c.init_qvel_noise = f64::INFINITY),
+                ("object_init_noise", |c| c.object_init_noise = 0.1),
+            ],
+        );
     }
 
     #[test]
     fn a_malformed_mjcf_string_is_a_clear_model_error() {
-        let err = Pusher::from_mjcf("<mujoco><worldbody><body>", PusherConfig::default())
-            .expect_err("malformed");
-        assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        let msg = err.to_string();
-        assert!(
-            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
-            "{msg}"
-        );
+        assert_malformed_mjcf(|xml| Pusher::from_mjcf(xml, PusherConfig::default()));
     }
 
     #[test]
@@ -1306,10 +1236,9 @@ mod tests {
                 "body \"object\" is at",
             ),
         ];
-        for (xml, want) in cases {
-            let err = Pusher::from_mjcf(&xml, PusherConfig::default()).expect_err(want);
-            assert!(matches!(err, EnvError::Model { .. }), "{err}");
-            assert!(err.to_string().contains(want), "{want}: {err}");
-        }
+        assert_wrong_shape_mjcf(
+            |xml| Pusher::from_mjcf(xml, PusherConfig::default()),
+            &cases,
+        );
     }
 }

@@ -503,6 +503,9 @@ impl ScriptedExpert for Reacher {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::conformance::{
+        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf,
+    };
 
     fn env(n_modes: usize) -> Reacher {
         Reacher::new(ReacherConfig {
@@ -680,74 +683,38 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let cases: Vec<(ReacherConfig, &str)> = vec![
-            (
-                ReacherConfig {
-                    target_radius: 0.25,
-                    ..Default::default()
-                },
-                "target_radius",
-            ),
-            (
-                ReacherConfig {
-                    target_radius: f64::NAN,
-                    ..Default::default()
-                },
-                "target_radius",
-            ),
-            (
-                ReacherConfig {
-                    max_steps: 0,
-                    ..Default::default()
-                },
-                "max_steps",
-            ),
-            (
-                ReacherConfig {
-                    frame_skip: 0,
-                    ..Default::default()
-                },
-                "frame_skip",
-            ),
-            (
-                ReacherConfig {
-                    expert_noise: -0.1,
-                    ..Default::default()
-                },
-                "expert_noise",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Reacher::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
-    }
-
-    #[test]
-    fn a_malformed_mjcf_string_is_a_clear_model_error() {
-        let err = Reacher::from_mjcf("<mujoco><worldbody><body>", ReacherConfig::default())
-            .expect_err("malformed");
-        assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        let msg = err.to_string();
-        // Our prefix, then MuJoCo's own parse message.
-        assert!(
-            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
-            "{msg}"
+        assert_bad_params::<ReacherConfig, _>(
+            Reacher::new,
+            &[
+                ("target_radius", |c| c.target_radius = 0.25),
+                ("target_radius", |c| c.target_radius = f64::NAN),
+                ("max_steps", |c| c.max_steps = 0),
+                ("frame_skip", |c| c.frame_skip = 0),
+                ("expert_noise", |c| c.expert_noise = -0.1),
+            ],
         );
     }
 
     #[test]
+    fn a_malformed_mjcf_string_is_a_clear_model_error() {
+        assert_malformed_mjcf(|xml| Reacher::from_mjcf(xml, ReacherConfig::default()));
+    }
+
+    #[test]
     fn an_mjcf_of_the_wrong_shape_is_a_model_error_saying_what_is_wrong() {
-        let no_site = REACHER_MJCF.replace("name=\"fingertip\"", "name=\"tip\"");
-        let err = Reacher::from_mjcf(&no_site, ReacherConfig::default()).expect_err("no site");
-        assert!(err.to_string().contains("fingertip"), "{err}");
-        let one_motor = REACHER_MJCF.replace("<motor name=\"elbow_motor\" joint=\"elbow\"/>", "");
-        let err = Reacher::from_mjcf(&one_motor, ReacherConfig::default()).expect_err("nu");
-        assert!(err.to_string().contains("nu = 1"), "{err}");
+        assert_wrong_shape_mjcf(
+            |xml| Reacher::from_mjcf(xml, ReacherConfig::default()),
+            &[
+                (
+                    REACHER_MJCF.replace("name=\"fingertip\"", "name=\"tip\""),
+                    "fingertip",
+                ),
+                (
+                    REACHER_MJCF.replace("<motor name=\"elbow_motor\" joint=\"elbow\"/>", ""),
+                    "nu = 1",
+                ),
+            ],
+        );
     }
 
     #[test]
