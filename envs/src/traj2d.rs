@@ -41,7 +41,8 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_obs_len,
+    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_can_step,
+    check_obs_len,
 };
 
 /// Number of positions in an observation.
@@ -287,12 +288,7 @@ impl Env for Traj2D {
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<StepOutcome, EnvError> {
-        if !self.started {
-            return Err(EnvError::NotReset);
-        }
-        if self.done {
-            return Err(EnvError::StepAfterDone { steps: self.steps });
-        }
+        check_can_step(self.started, self.done, self.steps)?;
         check_action(action, Self::ACT_DIM)?;
         check_obs_len(obs, Self::OBS_DIM)?;
         let a = f64::from(action[0]).clamp(-1.0, 1.0);
