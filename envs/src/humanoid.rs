@@ -251,17 +251,7 @@ pub struct Humanoid {
     terms: RewardTerms,
 }
 
-impl fmt::Debug for Humanoid {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Humanoid")
-            .field("cfg", &self.cfg)
-            .field("qpos", &self.sim.data.qpos())
-            .field("qvel", &self.sim.data.qvel())
-            .field("steps", &self.sim.steps)
-            .field("terms", &self.terms)
-            .finish_non_exhaustive()
-    }
-}
+crate::locomotion::loco_env_common!(Humanoid);
 
 impl Humanoid {
     /// Action length.
@@ -381,49 +371,6 @@ impl Humanoid {
     /// Whether the current state is healthy (torso height in range).
     pub fn is_healthy(&self) -> bool {
         in_open_range(self.torso_height(), self.cfg.healthy_z_range)
-    }
-
-    /// Current generalised positions (len [`Self::NQ`]).
-    pub fn qpos(&self) -> &[f64] {
-        self.sim.data.qpos()
-    }
-
-    /// Current generalised velocities (len [`Self::NV`]).
-    pub fn qvel(&self) -> &[f64] {
-        self.sim.data.qvel()
-    }
-
-    /// Overwrites the state (like Gymnasium's `set_state`), for tests and probes; the
-    /// episode goes on from it. Wrong lengths or non-finite values are
-    /// [`EnvError::BadParam`] naming `qpos` or `qvel`.
-    pub fn set_state(&mut self, qpos: &[f64], qvel: &[f64]) -> Result<(), EnvError> {
-        self.sim.set_state(qpos, qvel)
-    }
-
-    /// Reward of `mode` for the last transition (the start state's before the first
-    /// step), in `f64`.
-    pub fn mode_reward(&self, mode: LocoMode) -> f64 {
-        self.terms.reward(mode, &self.weights)
-    }
-
-    /// Seconds of simulated time per env step.
-    pub fn dt(&self) -> f64 {
-        self.sim.dt()
-    }
-
-    /// Physics timestep of the model, in seconds.
-    pub fn timestep(&self) -> f64 {
-        self.sim.data.model().opt().timestep
-    }
-
-    /// Steps taken in the current episode.
-    pub fn steps(&self) -> usize {
-        self.sim.steps
-    }
-
-    /// MuJoCo warning counters, by warning type, since the last reset.
-    pub fn warning_counts(&self) -> Vec<i32> {
-        self.sim.warning_counts()
     }
 
     fn contact_cost_now(&self) -> f64 {

@@ -374,6 +374,72 @@ impl Sim {
     }
 }
 
+/// What every locomotion env type (a struct with fields `cfg`, `sim: Sim`,
+/// `weights: RewardWeights` and `terms: RewardTerms`, and consts `NQ` and `NV`) has in
+/// the same words: its `Debug` impl and the state, timing, warning and per-mode reward
+/// accessors that read `sim` and `terms`.
+macro_rules! loco_env_common {
+    ($env:ident) => {
+        impl fmt::Debug for $env {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.debug_struct(stringify!($env))
+                    .field("cfg", &self.cfg)
+                    .field("qpos", &self.sim.data.qpos())
+                    .field("qvel", &self.sim.data.qvel())
+                    .field("steps", &self.sim.steps)
+                    .field("terms", &self.terms)
+                    .finish_non_exhaustive()
+            }
+        }
+
+        impl $env {
+            /// Current generalised positions (len [`Self::NQ`]).
+            pub fn qpos(&self) -> &[f64] {
+                self.sim.data.qpos()
+            }
+
+            /// Current generalised velocities (len [`Self::NV`]).
+            pub fn qvel(&self) -> &[f64] {
+                self.sim.data.qvel()
+            }
+
+            /// Overwrites the state (like Gymnasium's `set_state`), for tests and probes; the
+            /// episode goes on from it. Wrong lengths or non-finite values are
+            /// [`EnvError::BadParam`] naming `qpos` or `qvel`.
+            pub fn set_state(&mut self, qpos: &[f64], qvel: &[f64]) -> Result<(), EnvError> {
+                self.sim.set_state(qpos, qvel)
+            }
+
+            /// Seconds of simulated time per env step.
+            pub fn dt(&self) -> f64 {
+                self.sim.dt()
+            }
+
+            /// Physics timestep of the model, in seconds.
+            pub fn timestep(&self) -> f64 {
+                self.sim.data.model().opt().timestep
+            }
+
+            /// Steps taken in the current episode.
+            pub fn steps(&self) -> usize {
+                self.sim.steps
+            }
+
+            /// MuJoCo warning counters, by warning type, since the last reset.
+            pub fn warning_counts(&self) -> Vec<i32> {
+                self.sim.warning_counts()
+            }
+
+            /// Reward of `mode` for the last transition (the start state's before the first
+            /// step), in `f64`.
+            pub fn mode_reward(&self, mode: LocoMode) -> f64 {
+                self.terms.reward(mode, &self.weights)
+            }
+        }
+    };
+}
+pub(crate) use loco_env_common;
+
 /// Converts `src` to `f32` into the front of `dst` (as much as fits); returns the
 /// rest of `dst`.
 pub(crate) fn put<'a>(dst: &'a mut [f32], src: &[f64]) -> &'a mut [f32] {
