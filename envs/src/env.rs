@@ -277,6 +277,18 @@ pub(crate) fn check_obs_len(buf: &[f32], expected: usize) -> Result<(), EnvError
     }
 }
 
+/// Checks that an episode may step: it was `started` by a reset and is not `done`
+/// (`steps` taken so far go into the error).
+pub(crate) fn check_can_step(started: bool, done: bool, steps: usize) -> Result<(), EnvError> {
+    if !started {
+        return Err(EnvError::NotReset);
+    }
+    if done {
+        return Err(EnvError::StepAfterDone { steps });
+    }
+    Ok(())
+}
+
 /// Checks that `action` has length `expected` and only finite components.
 pub(crate) fn check_action(action: &[f32], expected: usize) -> Result<(), EnvError> {
     if action.len() != expected {

@@ -251,17 +251,7 @@ pub struct Humanoid {
     terms: RewardTerms,
 }
 
-impl fmt::Debug for Humanoid {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Humanoid")
-            .field("cfg", &self.cfg)
-            .field("qpos", &self.sim.data.qpos())
-            .field("qvel", &self.sim.data.qvel())
-            .field("steps", &self.sim.steps)
-            .field("terms", &self.terms)
-            .finish_non_exhaustive()
-    }
-}
+crate::locomotion::loco_env_common!(Humanoid);
 
 impl Humanoid {
     /// Action length.
@@ -383,49 +373,6 @@ impl Humanoid {
         in_open_range(self.torso_height(), self.cfg.healthy_z_range)
     }
 
-    /// Current generalised positions (len [`Self::NQ`]).
-    pub fn qpos(&self) -> &[f64] {
-        self.sim.data.qpos()
-    }
-
-    /// Current generalised velocities (len [`Self::NV`]).
-    pub fn qvel(&self) -> &[f64] {
-        self.sim.data.qvel()
-    }
-
-    /// Overwrites the state (like Gymnasium's `set_state`), for tests and probes; the
-    /// episode goes on from it. Wrong lengths or non-finite values are
-    /// [`EnvError::BadParam`] naming `qpos` or `qvel`.
-    pub fn set_state(&mut self, qpos: &[f64], qvel: &[f64]) -> Result<(), EnvError> {
-        self.sim.set_state(qpos, qvel)
-    }
-
-    /// Reward of `mode` for the last transition (the start state's before the first
-    /// step), in `f64`.
-    pub fn mode_reward(&self, mode: LocoMode) -> f64 {
-        self.terms.reward(mode, &self.weights)
-    }
-
-    /// Seconds of simulated time per env step.
-    pub fn dt(&self) -> f64 {
-        self.sim.dt()
-    }
-
-    /// Physics timestep of the model, in seconds.
-    pub fn timestep(&self) -> f64 {
-        self.sim.data.model().opt().timestep
-    }
-
-    /// Steps taken in the current episode.
-    pub fn steps(&self) -> usize {
-        self.sim.steps
-    }
-
-    /// MuJoCo warning counters, by warning type, since the last reset.
-    pub fn warning_counts(&self) -> Vec<i32> {
-        self.sim.warning_counts()
-    }
-
     fn contact_cost_now(&self) -> f64 {
         let sq: f64 = self
             .sim
@@ -504,7 +451,10 @@ impl Env for Humanoid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::env::conformance::{check_env, random_rollout};
+    use crate::env::conformance::{
+        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf, check_env,
+        random_rollout,
+    };
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -840,111 +790,47 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let d = HumanoidConfig::default;
-        let cases: Vec<(HumanoidConfig, &str)> = vec![
-            (
-                HumanoidConfig {
-                    max_steps: 0,
-                    ..d()
-                },
-                "max_steps",
-            ),
-            (
-                HumanoidConfig {
-                    frame_skip: 0,
-                    ..d()
-                },
-                "frame_skip",
-            ),
-            (
-                HumanoidConfig {
-                    healthy_reward: -5.0,
-                    ..d()
-                },
-                "healthy_reward",
-            ),
-            (
-                HumanoidConfig {
-                    forward_weight: f64::NAN,
-                    ..d()
-                },
-                "forward_weight",
-            ),
-            (
-                HumanoidConfig {
-                    ctrl_cost_weight: -0.1,
-                    ..d()
-                },
-                "ctrl_cost_weight",
-            ),
-            (
-                HumanoidConfig {
-                    contact_cost_weight: -1.0,
-                    ..d()
-                },
-                "contact_cost_weight",
-            ),
-            (
-                HumanoidConfig {
-                    contact_cost_max: f64::INFINITY,
-                    ..d()
-                },
-                "contact_cost_max",
-            ),
-            (
-                HumanoidConfig {
-                    healthy_z_range: [1.0, 1.0],
-                    ..d()
-                },
-                "healthy_z_range",
-            ),
-            (
-                HumanoidConfig {
-                    reset_noise_scale: f64::NAN,
-                    ..d()
-                },
-                "reset_noise_scale",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Humanoid::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
+        assert_bad_params::<HumanoidConfig, _>(
+            Humanoid::new,
+            &[
+                ("max_steps", |c| c.max_steps = 0),
+                ("frame_skip", |c| c.frame_skip = 0),
+                ("healthy_reward", |c| c.healthy_reward = -5.0),
+                ("forward_weight", |c| c.forward_weight = f64::NAN),
+                ("ctrl_cost_weight", |c| c.ctrl_cost_weight = -0.1),
+                ("contact_cost_weight", |c| c.contact_cost_weight = -1.0),
+                ("contact_cost_max", |c| c.contact_cost_max = f64::INFINITY),
+                ("healthy_z_range", |c| c.healthy_z_range = [1.0, 1.0]),
+                ("reset_noise_scale", |c| c.reset_noise_scale = f64::NAN),
+            ],
+        );
     }
 
     #[test]
     fn a_malformed_mjcf_string_is_a_clear_model_error() {
-        let err = Humanoid::from_mjcf("<mujoco><worldbody><body>", HumanoidConfig::default())
-            .expect_err("malformed");
-        assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        let msg = err.to_string();
-        assert!(
-            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
-            "{msg}"
-        );
+        assert_malformed_mjcf(|xml| Humanoid::from_mjcf(xml, HumanoidConfig::default()));
     }
 
     #[test]
     fn an_mjcf_of_the_wrong_shape_is_a_model_error_saying_what_is_wrong() {
-        let cfg = HumanoidConfig::default;
-        let no_torso = HUMANOID_MJCF.replace("name=\"torso\"", "name=\"chest\"");
-        let err = Humanoid::from_mjcf(&no_torso, cfg()).expect_err("no torso");
-        assert!(err.to_string().contains("torso"), "{err}");
-        let no_elbow_motor = HUMANOID_MJCF.replace(
-            "<motor name=\"left_elbow\" joint=\"left_elbow\" gear=\"25\"/>",
-            "",
+        let m = HUMANOID_MJCF;
+        assert_wrong_shape_mjcf(
+            |xml| Humanoid::from_mjcf(xml, HumanoidConfig::default()),
+            &[
+                (m.replace("name=\"torso\"", "name=\"chest\""), "torso"),
+                (
+                    m.replace(
+                        "<motor name=\"left_elbow\" joint=\"left_elbow\" gear=\"25\"/>",
+                        "",
+                    ),
+                    "nu = 16",
+                ),
+                (m.replace("<freejoint name=\"root\"/>", ""), "nq = 17"),
+                (
+                    m.replace("<motor ctrlrange=\"-0.4 0.4\"/>", ""),
+                    "ctrlrange",
+                ),
+            ],
         );
-        let err = Humanoid::from_mjcf(&no_elbow_motor, cfg()).expect_err("nu");
-        assert!(err.to_string().contains("nu = 16"), "{err}");
-        let no_root = HUMANOID_MJCF.replace("<freejoint name=\"root\"/>", "");
-        let err = Humanoid::from_mjcf(&no_root, cfg()).expect_err("nq");
-        assert!(err.to_string().contains("nq = 17"), "{err}");
-        let unlimited = HUMANOID_MJCF.replace("<motor ctrlrange=\"-0.4 0.4\"/>", "");
-        let err = Humanoid::from_mjcf(&unlimited, cfg()).expect_err("ctrlrange");
-        assert!(err.to_string().contains("ctrlrange"), "{err}");
     }
 }

@@ -30,6 +30,7 @@ pub mod env;
 pub mod expert;
 pub mod humanoid;
 pub mod locomotion;
+mod mujoco;
 pub mod pusher;
 pub mod reacher;
 pub mod traj2d;

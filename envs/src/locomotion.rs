@@ -25,12 +25,13 @@
 //! forward and to `r_0` when moving backward): the balance reward is only comparable
 //! between policies, not between modes.
 
-use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
+use mujoco_rs::prelude::MjtObjBase;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::env::{EnvError, check_action, check_obs_len};
+use crate::env::{EnvError, check_action, check_can_step, check_obs_len};
+use crate::mujoco::{self, model_error};
 
 /// Number of behaviour modes of every locomotion env.
 pub const N_MODES: usize = 3;
@@ -178,12 +179,6 @@ pub(crate) fn check_range(field: &'static str, range: [f64; 2]) -> Result<(), En
     Ok(())
 }
 
-fn model_error(reason: impl Into<String>) -> EnvError {
-    EnvError::Model {
-        reason: reason.into(),
-    }
-}
-
 /// The shape a locomotion model must have.
 pub(crate) struct ModelShape<'a> {
     /// Env name, for messages.
@@ -208,7 +203,7 @@ pub(crate) struct ModelShape<'a> {
 /// after construction.
 pub(crate) struct Sim {
     /// The MuJoCo model and state.
-    pub data: MjData<Box<MjModel>>,
+    pub data: mujoco::Data,
     init_qpos: Vec<f64>,
     ctrl_centre: Vec<f64>,
     ctrl_half: Vec<f64>,
@@ -228,7 +223,7 @@ impl Sim {
         frame_skip: usize,
         max_steps: usize,
     ) -> Result<Self, EnvError> {
-        let model = MjModel::from_xml_string(xml).map_err(|e| model_error(e.to_string()))?;
+        let model = mujoco::load_model(xml)?;
         let ffi = model.ffi();
         let dims = [
             ("nq", ffi.nq, shape.nq),
@@ -265,7 +260,7 @@ impl Sim {
             ctrl_half.push(0.5 * (r[1] - r[0]));
         }
         let init_qpos = model.qpos0().to_vec();
-        let data = MjData::try_new(Box::new(model)).map_err(|e| model_error(e.to_string()))?;
+        let data = mujoco::new_data(model)?;
         Ok(Self {
             data,
             init_qpos,
@@ -306,12 +301,7 @@ impl Sim {
 
     /// Checks the episode may step and the buffers are valid.
     pub fn check_step(&self, action: &[f32], obs: &[f32], obs_dim: usize) -> Result<(), EnvError> {
-        if !self.started {
-            return Err(EnvError::NotReset);
-        }
-        if self.done {
-            return Err(EnvError::StepAfterDone { steps: self.steps });
-        }
+        check_can_step(self.started, self.done, self.steps)?;
         check_action(action, self.ctrl_centre.len())?;
         check_obs_len(obs, obs_dim)
     }
@@ -335,7 +325,7 @@ impl Sim {
             self.data.step();
         }
         self.steps += 1;
-        if let Err(e) = self.check_warnings() {
+        if let Err(e) = mujoco::check_warnings(&self.data, self.steps) {
             self.done = true;
             return Err(e);
         }
@@ -354,23 +344,7 @@ impl Sim {
 
     /// MuJoCo warning counters, by warning type, since the last reset.
     pub fn warning_counts(&self) -> Vec<i32> {
-        self.data.warning().iter().map(|w| w.number).collect()
-    }
-
-    /// Errors when MuJoCo raised any warning since the last reset.
-    fn check_warnings(&self) -> Result<(), EnvError> {
-        match self.data.warning().iter().position(|w| w.number > 0) {
-            Some(index) => Err(EnvError::Simulation {
-                reason: format!(
-                    "MuJoCo warning type {index} raised {} time(s) by step {} (info {}); \
-                     the model is unstable or misconfigured",
-                    self.data.warning()[index].number,
-                    self.steps,
-                    self.data.warning()[index].lastinfo
-                ),
-            }),
-            None => Ok(()),
-        }
+        mujoco::warning_counts(&self.data)
     }
 
     /// Overwrites the state with `qpos` (len `nq`) and `qvel` (len `nv`) and runs
@@ -399,6 +373,72 @@ impl Sim {
         Ok(())
     }
 }
+
+/// What every locomotion env type (a struct with fields `cfg`, `sim: Sim`,
+/// `weights: RewardWeights` and `terms: RewardTerms`, and consts `NQ` and `NV`) has in
+/// the same words: its `Debug` impl and the state, timing, warning and per-mode reward
+/// accessors that read `sim` and `terms`.
+macro_rules! loco_env_common {
+    ($env:ident) => {
+        impl fmt::Debug for $env {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.debug_struct(stringify!($env))
+                    .field("cfg", &self.cfg)
+                    .field("qpos", &self.sim.data.qpos())
+                    .field("qvel", &self.sim.data.qvel())
+                    .field("steps", &self.sim.steps)
+                    .field("terms", &self.terms)
+                    .finish_non_exhaustive()
+            }
+        }
+
+        impl $env {
+            /// Current generalised positions (len [`Self::NQ`]).
+            pub fn qpos(&self) -> &[f64] {
+                self.sim.data.qpos()
+            }
+
+            /// Current generalised velocities (len [`Self::NV`]).
+            pub fn qvel(&self) -> &[f64] {
+                self.sim.data.qvel()
+            }
+
+            /// Overwrites the state (like Gymnasium's `set_state`), for tests and probes; the
+            /// episode goes on from it. Wrong lengths or non-finite values are
+            /// [`EnvError::BadParam`] naming `qpos` or `qvel`.
+            pub fn set_state(&mut self, qpos: &[f64], qvel: &[f64]) -> Result<(), EnvError> {
+                self.sim.set_state(qpos, qvel)
+            }
+
+            /// Seconds of simulated time per env step.
+            pub fn dt(&self) -> f64 {
+                self.sim.dt()
+            }
+
+            /// Physics timestep of the model, in seconds.
+            pub fn timestep(&self) -> f64 {
+                self.sim.data.model().opt().timestep
+            }
+
+            /// Steps taken in the current episode.
+            pub fn steps(&self) -> usize {
+                self.sim.steps
+            }
+
+            /// MuJoCo warning counters, by warning type, since the last reset.
+            pub fn warning_counts(&self) -> Vec<i32> {
+                self.sim.warning_counts()
+            }
+
+            /// Reward of `mode` for the last transition (the start state's before the first
+            /// step), in `f64`.
+            pub fn mode_reward(&self, mode: LocoMode) -> f64 {
+                self.terms.reward(mode, &self.weights)
+            }
+        }
+    };
+}
+pub(crate) use loco_env_common;
 
 /// Converts `src` to `f32` into the front of `dst` (as much as fits); returns the
 /// rest of `dst`.

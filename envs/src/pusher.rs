@@ -65,12 +65,15 @@
 use std::f64::consts::PI;
 use std::fmt;
 
-use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
+use mujoco_rs::prelude::MjtObjBase;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::env::{Env, EnvError, EnvSpec, StepOutcome, check_action, check_obs_len};
+use crate::env::{
+    Env, EnvError, EnvSpec, StepOutcome, check_action, check_can_step, check_obs_len,
+};
+use crate::mujoco::{self, model_error};
 
 /// Number of arm joints (and motors).
 pub const ARM_DOF: usize = 7;
@@ -331,15 +334,11 @@ fn bad(field: &'static str, value: f64, reason: &str) -> EnvError {
     }
 }
 
-fn model_err(reason: String) -> EnvError {
-    EnvError::Model { reason }
-}
-
 /// The multi-goal Pusher environment; see the module docs.
 pub struct Pusher {
     cfg: PusherConfig,
     spec: EnvSpec,
-    data: MjData<Box<MjModel>>,
+    data: mujoco::Data,
     /// Body id of `tips_arm`.
     tip: usize,
     /// Body id of `object`.
@@ -391,7 +390,7 @@ impl Pusher {
     /// is wrong. The `object` body must sit at [`OBJECT_START`], height [`OBJECT_Z`].
     pub fn from_mjcf(xml: &str, cfg: PusherConfig) -> Result<Self, EnvError> {
         cfg.validate()?;
-        let model = MjModel::from_xml_string(xml).map_err(|e| model_err(e.to_string()))?;
+        let model = mujoco::load_model(xml)?;
         let shape = [
             ("nq", model.ffi().nq, ARM_DOF + 2),
             ("nv", model.ffi().nv, ARM_DOF + 2),
@@ -399,7 +398,7 @@ impl Pusher {
         ];
         for (what, got, want) in shape {
             if usize::try_from(got).ok() != Some(want) {
-                return Err(model_err(format!(
+                return Err(model_error(format!(
                     "{what} = {got}, expected {want} (a 7-joint, 7-motor arm and a puck on \
                      two slide joints)"
                 )));
@@ -408,14 +407,14 @@ impl Pusher {
         let body = |name: &str| {
             model
                 .name_to_id(MjtObjBase::mjOBJ_BODY, name)
-                .ok_or_else(|| model_err(format!("no body named {name:?}")))
+                .ok_or_else(|| model_error(format!("no body named {name:?}")))
         };
         let tip = body(TIP_BODY)?;
         let object = body(OBJECT_BODY)?;
         let start = [OBJECT_START[0], OBJECT_START[1], OBJECT_Z];
         let pos = model.body_pos()[object];
         if dist(pos, start) > 1e-9 {
-            return Err(model_err(format!(
+            return Err(model_error(format!(
                 "body {OBJECT_BODY:?} is at {pos:?}, expected {start:?} (the puck's nominal \
                  start, which the goals are placed around)"
             )));
@@ -423,11 +422,11 @@ impl Pusher {
         for (i, name) in OBJECT_JOINTS.into_iter().enumerate() {
             let id = model
                 .name_to_id(MjtObjBase::mjOBJ_JOINT, name)
-                .ok_or_else(|| model_err(format!("no joint named {name:?}")))?;
+                .ok_or_else(|| model_error(format!("no joint named {name:?}")))?;
             let adr = model.jnt_qposadr()[id];
             let want = ARM_DOF + i;
             if usize::try_from(adr).ok() != Some(want) {
-                return Err(model_err(format!(
+                return Err(model_error(format!(
                     "joint {name:?} has qpos address {adr}, expected {want} (the puck's \
                      slide joints come after the arm's)"
                 )));
@@ -442,7 +441,7 @@ impl Pusher {
                 *r = [(-n).clamp(lo, hi), n.clamp(lo, hi)];
             }
         }
-        let data = MjData::try_new(Box::new(model)).map_err(|e| model_err(e.to_string()))?;
+        let data = mujoco::new_data(model)?;
         let goals = cfg
             .goals()
             .into_iter()
@@ -523,7 +522,7 @@ impl Pusher {
 
     /// MuJoCo warning counters, by warning type, since the last reset.
     pub fn warning_counts(&self) -> Vec<i32> {
-        self.data.warning().iter().map(|w| w.number).collect()
+        mujoco::warning_counts(&self.data)
     }
 
     fn write_obs(&self, obs: &mut [f32]) {
@@ -533,22 +532,6 @@ impl Pusher {
         let values = q.iter().chain(v).chain(&tip).chain(&object);
         for (o, x) in obs.iter_mut().zip(values) {
             *o = *x as f32;
-        }
-    }
-
-    /// Errors when MuJoCo raised any warning since the last reset.
-    fn check_warnings(&self) -> Result<(), EnvError> {
-        match self.data.warning().iter().position(|w| w.number > 0) {
-            Some(index) => Err(EnvError::Simulation {
-                reason: format!(
-                    "MuJoCo warning type {index} raised {} time(s) by step {} (info {}); \
-                     the model is unstable or misconfigured",
-                    self.data.warning()[index].number,
-                    self.steps,
-                    self.data.warning()[index].lastinfo
-                ),
-            }),
-            None => Ok(()),
         }
     }
 
@@ -605,12 +588,7 @@ impl Env for Pusher {
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<StepOutcome, EnvError> {
-        if !self.started {
-            return Err(EnvError::NotReset);
-        }
-        if self.done {
-            return Err(EnvError::StepAfterDone { steps: self.steps });
-        }
+        check_can_step(self.started, self.done, self.steps)?;
         check_action(action, Self::ACT_DIM)?;
         check_obs_len(obs, Self::OBS_DIM)?;
         for (slot, a) in self.last_action.iter_mut().zip(action) {
@@ -623,7 +601,7 @@ impl Env for Pusher {
         // mj_step leaves body positions at the state before its last integration step.
         self.data.forward_kinematics();
         self.steps += 1;
-        if let Err(e) = self.check_warnings() {
+        if let Err(e) = mujoco::check_warnings(&self.data, self.steps) {
             self.done = true;
             return Err(e);
         }
@@ -654,6 +632,9 @@ impl Env for Pusher {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::conformance::{
+        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf,
+    };
     use rand_distr::StandardNormal;
 
     /// A kinematic pose of the fork: where the crossbar centre is, and its axes.
@@ -1168,101 +1149,28 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let d = PusherConfig::default;
-        let cases: Vec<(PusherConfig, &str)> = vec![
-            (PusherConfig { n_modes: 1, ..d() }, "n_modes"),
-            (PusherConfig { n_modes: 7, ..d() }, "n_modes"),
-            (
-                PusherConfig {
-                    goal_radius: 0.3,
-                    ..d()
-                },
-                "goal_radius",
-            ),
-            (
-                PusherConfig {
-                    goal_radius: 0.05,
-                    ..d()
-                },
-                "goal_radius",
-            ),
-            (
-                PusherConfig {
-                    goal_radius: f64::NAN,
-                    ..d()
-                },
-                "goal_radius",
-            ),
-            (
-                PusherConfig {
-                    goal_arc: 0.0,
-                    ..d()
-                },
-                "goal_arc",
-            ),
-            (
-                PusherConfig {
-                    goal_arc: 4.0,
-                    ..d()
-                },
-                "goal_arc",
-            ),
-            (
-                PusherConfig {
-                    max_steps: 0,
-                    ..d()
-                },
-                "max_steps",
-            ),
-            (
-                PusherConfig {
-                    frame_skip: 0,
-                    ..d()
-                },
-                "frame_skip",
-            ),
-            (
-                PusherConfig {
-                    init_qpos_noise: -0.1,
-                    ..d()
-                },
-                "init_qpos_noise",
-            ),
-            (
-                PusherConfig {
-                    init_qvel_noise: f64::INFINITY,
-                    ..d()
-                },
-                "init_qvel_noise",
-            ),
-            (
-                PusherConfig {
-                    object_init_noise: 0.1,
-                    ..d()
-                },
-                "object_init_noise",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Pusher::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
+        assert_bad_params::<PusherConfig, _>(
+            Pusher::new,
+            &[
+                ("n_modes", |c| c.n_modes = 1),
+                ("n_modes", |c| c.n_modes = 7),
+                ("goal_radius", |c| c.goal_radius = 0.3),
+                ("goal_radius", |c| c.goal_radius = 0.05),
+                ("goal_radius", |c| c.goal_radius = f64::NAN),
+                ("goal_arc", |c| c.goal_arc = 0.0),
+                ("goal_arc", |c| c.goal_arc = 4.0),
+                ("max_steps", |c| c.max_steps = 0),
+                ("frame_skip", |c| c.frame_skip = 0),
+                ("init_qpos_noise", |c| c.init_qpos_noise = -0.1),
+                ("init_qvel_noise", |c| c.init_qvel_noise = f64::INFINITY),
+                ("object_init_noise", |c| c.object_init_noise = 0.1),
+            ],
+        );
     }
 
     #[test]
     fn a_malformed_mjcf_string_is_a_clear_model_error() {
-        let err = Pusher::from_mjcf("<mujoco><worldbody><body>", PusherConfig::default())
-            .expect_err("malformed");
-        assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        let msg = err.to_string();
-        assert!(
-            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
-            "{msg}"
-        );
+        assert_malformed_mjcf(|xml| Pusher::from_mjcf(xml, PusherConfig::default()));
     }
 
     #[test]
@@ -1306,10 +1214,9 @@ mod tests {
                 "body \"object\" is at",
             ),
         ];
-        for (xml, want) in cases {
-            let err = Pusher::from_mjcf(&xml, PusherConfig::default()).expect_err(want);
-            assert!(matches!(err, EnvError::Model { .. }), "{err}");
-            assert!(err.to_string().contains(want), "{want}: {err}");
-        }
+        assert_wrong_shape_mjcf(
+            |xml| Pusher::from_mjcf(xml, PusherConfig::default()),
+            &cases,
+        );
     }
 }

@@ -38,15 +38,17 @@
 use std::f64::consts::PI;
 use std::fmt;
 
-use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
+use mujoco_rs::prelude::MjtObjBase;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_obs_len,
+    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_can_step,
+    check_obs_len,
 };
+use crate::mujoco;
 
 /// Length of the upper arm (shoulder to elbow), in metres.
 pub const LINK0: f64 = 0.1;
@@ -199,7 +201,7 @@ fn bad(field: &'static str, value: f64, reason: &str) -> EnvError {
 pub struct Reacher {
     cfg: ReacherConfig,
     spec: EnvSpec,
-    data: MjData<Box<MjModel>>,
+    data: mujoco::Data,
     fingertip: usize,
     targets: Vec<[f64; 2]>,
     /// Clamped action of the last step (zero before the first).
@@ -240,9 +242,7 @@ impl Reacher {
     /// [`EnvError::Model`].
     pub fn from_mjcf(xml: &str, cfg: ReacherConfig) -> Result<Self, EnvError> {
         cfg.validate()?;
-        let model = MjModel::from_xml_string(xml).map_err(|e| EnvError::Model {
-            reason: e.to_string(),
-        })?;
+        let model = mujoco::load_model(xml)?;
         let shape = [
             ("nq", model.ffi().nq),
             ("nv", model.ffi().nv),
@@ -260,9 +260,7 @@ impl Reacher {
             .ok_or_else(|| EnvError::Model {
                 reason: format!("no site named {FINGERTIP_SITE:?}"),
             })?;
-        let data = MjData::try_new(Box::new(model)).map_err(|e| EnvError::Model {
-            reason: e.to_string(),
-        })?;
+        let data = mujoco::new_data(model)?;
         let k = cfg.n_modes;
         let targets = (0..k)
             .map(|i| {
@@ -340,7 +338,7 @@ impl Reacher {
 
     /// MuJoCo warning counters, by warning type, since the last reset.
     pub fn warning_counts(&self) -> Vec<i32> {
-        self.data.warning().iter().map(|w| w.number).collect()
+        mujoco::warning_counts(&self.data)
     }
 
     fn write_obs(&self, obs: &mut [f32]) {
@@ -359,22 +357,6 @@ impl Reacher {
         ];
         for (o, x) in obs.iter_mut().zip(values) {
             *o = x as f32;
-        }
-    }
-
-    /// Errors when MuJoCo raised any warning since the last reset.
-    fn check_warnings(&self) -> Result<(), EnvError> {
-        match self.data.warning().iter().position(|w| w.number > 0) {
-            Some(index) => Err(EnvError::Simulation {
-                reason: format!(
-                    "MuJoCo warning type {index} raised {} time(s) by step {} (info {}); \
-                     the model is unstable or misconfigured",
-                    self.data.warning()[index].number,
-                    self.steps,
-                    self.data.warning()[index].lastinfo
-                ),
-            }),
-            None => Ok(()),
         }
     }
 }
@@ -423,12 +405,7 @@ impl Env for Reacher {
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<StepOutcome, EnvError> {
-        if !self.started {
-            return Err(EnvError::NotReset);
-        }
-        if self.done {
-            return Err(EnvError::StepAfterDone { steps: self.steps });
-        }
+        check_can_step(self.started, self.done, self.steps)?;
         check_action(action, Self::ACT_DIM)?;
         check_obs_len(obs, Self::OBS_DIM)?;
         let a = [
@@ -443,7 +420,7 @@ impl Env for Reacher {
         self.data.forward_kinematics();
         self.last_action = a;
         self.steps += 1;
-        if let Err(e) = self.check_warnings() {
+        if let Err(e) = mujoco::check_warnings(&self.data, self.steps) {
             self.done = true;
             return Err(e);
         }
@@ -503,6 +480,9 @@ impl ScriptedExpert for Reacher {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::conformance::{
+        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf,
+    };
 
     fn env(n_modes: usize) -> Reacher {
         Reacher::new(ReacherConfig {
@@ -680,74 +660,38 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let cases: Vec<(ReacherConfig, &str)> = vec![
-            (
-                ReacherConfig {
-                    target_radius: 0.25,
-                    ..Default::default()
-                },
-                "target_radius",
-            ),
-            (
-                ReacherConfig {
-                    target_radius: f64::NAN,
-                    ..Default::default()
-                },
-                "target_radius",
-            ),
-            (
-                ReacherConfig {
-                    max_steps: 0,
-                    ..Default::default()
-                },
-                "max_steps",
-            ),
-            (
-                ReacherConfig {
-                    frame_skip: 0,
-                    ..Default::default()
-                },
-                "frame_skip",
-            ),
-            (
-                ReacherConfig {
-                    expert_noise: -0.1,
-                    ..Default::default()
-                },
-                "expert_noise",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Reacher::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
-    }
-
-    #[test]
-    fn a_malformed_mjcf_string_is_a_clear_model_error() {
-        let err = Reacher::from_mjcf("<mujoco><worldbody><body>", ReacherConfig::default())
-            .expect_err("malformed");
-        assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        let msg = err.to_string();
-        // Our prefix, then MuJoCo's own parse message.
-        assert!(
-            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
-            "{msg}"
+        assert_bad_params::<ReacherConfig, _>(
+            Reacher::new,
+            &[
+                ("target_radius", |c| c.target_radius = 0.25),
+                ("target_radius", |c| c.target_radius = f64::NAN),
+                ("max_steps", |c| c.max_steps = 0),
+                ("frame_skip", |c| c.frame_skip = 0),
+                ("expert_noise", |c| c.expert_noise = -0.1),
+            ],
         );
     }
 
     #[test]
+    fn a_malformed_mjcf_string_is_a_clear_model_error() {
+        assert_malformed_mjcf(|xml| Reacher::from_mjcf(xml, ReacherConfig::default()));
+    }
+
+    #[test]
     fn an_mjcf_of_the_wrong_shape_is_a_model_error_saying_what_is_wrong() {
-        let no_site = REACHER_MJCF.replace("name=\"fingertip\"", "name=\"tip\"");
-        let err = Reacher::from_mjcf(&no_site, ReacherConfig::default()).expect_err("no site");
-        assert!(err.to_string().contains("fingertip"), "{err}");
-        let one_motor = REACHER_MJCF.replace("<motor name=\"elbow_motor\" joint=\"elbow\"/>", "");
-        let err = Reacher::from_mjcf(&one_motor, ReacherConfig::default()).expect_err("nu");
-        assert!(err.to_string().contains("nu = 1"), "{err}");
+        assert_wrong_shape_mjcf(
+            |xml| Reacher::from_mjcf(xml, ReacherConfig::default()),
+            &[
+                (
+                    REACHER_MJCF.replace("name=\"fingertip\"", "name=\"tip\""),
+                    "fingertip",
+                ),
+                (
+                    REACHER_MJCF.replace("<motor name=\"elbow_motor\" joint=\"elbow\"/>", ""),
+                    "nu = 1",
+                ),
+            ],
+        );
     }
 
     #[test]

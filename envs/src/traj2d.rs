@@ -41,7 +41,8 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_obs_len,
+    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_can_step,
+    check_obs_len,
 };
 
 /// Number of positions in an observation.
@@ -287,12 +288,7 @@ impl Env for Traj2D {
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<StepOutcome, EnvError> {
-        if !self.started {
-            return Err(EnvError::NotReset);
-        }
-        if self.done {
-            return Err(EnvError::StepAfterDone { steps: self.steps });
-        }
+        check_can_step(self.started, self.done, self.steps)?;
         check_action(action, Self::ACT_DIM)?;
         check_obs_len(obs, Self::OBS_DIM)?;
         let a = f64::from(action[0]).clamp(-1.0, 1.0);
@@ -358,6 +354,7 @@ impl ScriptedExpert for Traj2D {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::conformance::assert_bad_params;
 
     /// Mean per-step reward of every mode over `episodes` episodes, acting with `policy`.
     fn mean_mode_rewards(
@@ -406,65 +403,18 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let cases: Vec<(Traj2DConfig, &str)> = vec![
-            (
-                Traj2DConfig {
-                    speed: -1.0,
-                    ..Default::default()
-                },
-                "speed",
-            ),
-            (
-                Traj2DConfig {
-                    max_turn: f64::NAN,
-                    ..Default::default()
-                },
-                "max_turn",
-            ),
-            (
-                Traj2DConfig {
-                    r_small: 0.0,
-                    ..Default::default()
-                },
-                "r_small",
-            ),
-            (
-                Traj2DConfig {
-                    r_large: 0.5,
-                    ..Default::default()
-                },
-                "r_large",
-            ),
-            (
-                Traj2DConfig {
-                    max_steps: 0,
-                    ..Default::default()
-                },
-                "max_steps",
-            ),
-            (
-                Traj2DConfig {
-                    expert_noise: f64::INFINITY,
-                    ..Default::default()
-                },
-                "expert_noise",
-            ),
-            (
-                Traj2DConfig {
-                    max_turn: 0.1,
-                    ..Default::default()
-                },
-                "max_turn",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Traj2D::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
+        assert_bad_params::<Traj2DConfig, _>(
+            Traj2D::new,
+            &[
+                ("speed", |c| c.speed = -1.0),
+                ("max_turn", |c| c.max_turn = f64::NAN),
+                ("r_small", |c| c.r_small = 0.0),
+                ("r_large", |c| c.r_large = 0.5),
+                ("max_steps", |c| c.max_steps = 0),
+                ("expert_noise", |c| c.expert_noise = f64::INFINITY),
+                ("max_turn", |c| c.max_turn = 0.1),
+            ],
+        );
     }
 
     #[test]

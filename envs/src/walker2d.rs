@@ -171,17 +171,7 @@ pub struct Walker2d {
     terms: RewardTerms,
 }
 
-impl fmt::Debug for Walker2d {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Walker2d")
-            .field("cfg", &self.cfg)
-            .field("qpos", &self.sim.data.qpos())
-            .field("qvel", &self.sim.data.qvel())
-            .field("steps", &self.sim.steps)
-            .field("terms", &self.terms)
-            .finish_non_exhaustive()
-    }
-}
+crate::locomotion::loco_env_common!(Walker2d);
 
 impl Walker2d {
     /// Observation length (v5's).
@@ -265,49 +255,6 @@ impl Walker2d {
             && in_open_range(self.torso_angle(), self.cfg.healthy_angle_range)
     }
 
-    /// Current generalised positions (len [`Self::NQ`]).
-    pub fn qpos(&self) -> &[f64] {
-        self.sim.data.qpos()
-    }
-
-    /// Current generalised velocities (len [`Self::NV`]).
-    pub fn qvel(&self) -> &[f64] {
-        self.sim.data.qvel()
-    }
-
-    /// Overwrites the state (like Gymnasium's `set_state`), for tests and probes; the
-    /// episode goes on from it. Wrong lengths or non-finite values are
-    /// [`EnvError::BadParam`] naming `qpos` or `qvel`.
-    pub fn set_state(&mut self, qpos: &[f64], qvel: &[f64]) -> Result<(), EnvError> {
-        self.sim.set_state(qpos, qvel)
-    }
-
-    /// Seconds of simulated time per env step.
-    pub fn dt(&self) -> f64 {
-        self.sim.dt()
-    }
-
-    /// Physics timestep of the model, in seconds.
-    pub fn timestep(&self) -> f64 {
-        self.sim.data.model().opt().timestep
-    }
-
-    /// Steps taken in the current episode.
-    pub fn steps(&self) -> usize {
-        self.sim.steps
-    }
-
-    /// MuJoCo warning counters, by warning type, since the last reset.
-    pub fn warning_counts(&self) -> Vec<i32> {
-        self.sim.warning_counts()
-    }
-
-    /// Reward of `mode` for the last transition (the start state's before the first
-    /// step), in `f64`.
-    pub fn mode_reward(&self, mode: LocoMode) -> f64 {
-        self.terms.reward(mode, &self.weights)
-    }
-
     fn write_obs(&self, obs: &mut [f32]) {
         let rest = put(obs, &self.sim.data.qpos()[1..]);
         let clip = self.cfg.qvel_clip;
@@ -360,7 +307,10 @@ impl Env for Walker2d {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::env::conformance::{check_env, random_rollout};
+    use crate::env::conformance::{
+        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf, check_env,
+        random_rollout,
+    };
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use std::f64::consts::PI;
@@ -590,73 +540,21 @@ mod tests {
 
     #[test]
     fn invalid_config_errors_name_the_field() {
-        let d = Walker2dConfig::default;
-        let cases: Vec<(Walker2dConfig, &str)> = vec![
-            (
-                Walker2dConfig {
-                    max_steps: 0,
-                    ..d()
-                },
-                "max_steps",
-            ),
-            (
-                Walker2dConfig {
-                    frame_skip: 0,
-                    ..d()
-                },
-                "frame_skip",
-            ),
-            (
-                Walker2dConfig {
-                    healthy_reward: f64::NAN,
-                    ..d()
-                },
-                "healthy_reward",
-            ),
-            (
-                Walker2dConfig {
-                    ctrl_cost_weight: -1.0,
-                    ..d()
-                },
-                "ctrl_cost_weight",
-            ),
-            (
-                Walker2dConfig {
-                    healthy_z_range: [2.0, 0.8],
-                    ..d()
-                },
-                "healthy_z_range",
-            ),
-            (
-                Walker2dConfig {
-                    healthy_angle_range: [-1.0, f64::INFINITY],
-                    ..d()
-                },
-                "healthy_angle_range",
-            ),
-            (
-                Walker2dConfig {
-                    reset_noise_scale: -0.1,
-                    ..d()
-                },
-                "reset_noise_scale",
-            ),
-            (
-                Walker2dConfig {
-                    qvel_clip: 0.0,
-                    ..d()
-                },
-                "qvel_clip",
-            ),
-        ];
-        for (cfg, field) in cases {
-            let err = Walker2d::new(cfg).expect_err(field);
-            assert!(
-                matches!(err, EnvError::BadParam { field: f, .. } if f == field),
-                "{field}: {err}"
-            );
-            assert!(err.to_string().contains(field), "{err}");
-        }
+        assert_bad_params::<Walker2dConfig, _>(
+            Walker2d::new,
+            &[
+                ("max_steps", |c| c.max_steps = 0),
+                ("frame_skip", |c| c.frame_skip = 0),
+                ("healthy_reward", |c| c.healthy_reward = f64::NAN),
+                ("ctrl_cost_weight", |c| c.ctrl_cost_weight = -1.0),
+                ("healthy_z_range", |c| c.healthy_z_range = [2.0, 0.8]),
+                ("healthy_angle_range", |c| {
+                    c.healthy_angle_range = [-1.0, f64::INFINITY]
+                }),
+                ("reset_noise_scale", |c| c.reset_noise_scale = -0.1),
+                ("qvel_clip", |c| c.qvel_clip = 0.0),
+            ],
+        );
     }
 
     #[test]
@@ -674,35 +572,30 @@ mod tests {
 
     #[test]
     fn a_malformed_mjcf_string_is_a_clear_model_error() {
-        let err = Walker2d::from_mjcf("<mujoco><worldbody><body>", Walker2dConfig::default())
-            .expect_err("malformed");
-        assert!(matches!(err, EnvError::Model { .. }), "{err}");
-        let msg = err.to_string();
-        assert!(
-            msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
-            "{msg}"
-        );
+        assert_malformed_mjcf(|xml| Walker2d::from_mjcf(xml, Walker2dConfig::default()));
     }
 
     #[test]
     fn an_mjcf_of_the_wrong_shape_is_a_model_error_saying_what_is_wrong() {
-        let cfg = Walker2dConfig::default;
-        let no_torso = WALKER2D_MJCF.replace("name=\"torso\"", "name=\"trunk\"");
-        let err = Walker2d::from_mjcf(&no_torso, cfg()).expect_err("no torso");
-        assert!(err.to_string().contains("torso"), "{err}");
-        let one_less =
-            WALKER2D_MJCF.replace("<motor name=\"foot_left\" joint=\"foot_left_joint\"/>", "");
-        let err = Walker2d::from_mjcf(&one_less, cfg()).expect_err("nu");
-        assert!(err.to_string().contains("nu = 5"), "{err}");
-        let no_z = WALKER2D_MJCF.replace(
-            "<joint name=\"rootz\" class=\"root\" type=\"slide\" axis=\"0 0 1\" ref=\"1.25\"/>",
-            "",
+        let m = WALKER2D_MJCF;
+        assert_wrong_shape_mjcf(
+            |xml| Walker2d::from_mjcf(xml, Walker2dConfig::default()),
+            &[
+                (m.replace("name=\"torso\"", "name=\"trunk\""), "torso"),
+                (
+                    m.replace("<motor name=\"foot_left\" joint=\"foot_left_joint\"/>", ""),
+                    "nu = 5",
+                ),
+                (
+                    m.replace(
+                        "<joint name=\"rootz\" class=\"root\" type=\"slide\" axis=\"0 0 1\" ref=\"1.25\"/>",
+                        "",
+                    ),
+                    "nq = 8",
+                ),
+                (m.replace("ctrlrange=\"-1 1\"", ""), "ctrlrange"),
+            ],
         );
-        let err = Walker2d::from_mjcf(&no_z, cfg()).expect_err("nq");
-        assert!(err.to_string().contains("nq = 8"), "{err}");
-        let unlimited = WALKER2D_MJCF.replace("ctrlrange=\"-1 1\"", "");
-        let err = Walker2d::from_mjcf(&unlimited, cfg()).expect_err("ctrlrange");
-        assert!(err.to_string().contains("ctrlrange"), "{err}");
     }
 
     #[test]

@@ -41,7 +41,10 @@ pub trait Progress {
     fn message(&mut self, msg: &str);
 }
 
-/// One row of `metrics.csv`.
+/// One row of `metrics.csv`: one per iteration, in order. The last iteration's row
+/// carries the final evaluation's `nmi`, `ent` and `normalized_reward` (the periodic
+/// evaluation is skipped there); a run stopped before its first iteration writes a
+/// single row of iteration 0 with the final evaluation of the untrained policy.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct IterationLog {
     /// Iteration index (1-based).
@@ -393,6 +396,9 @@ pub fn run(
     let mut iters_done = 0;
     let mut interrupted = false;
     let mut curve: Vec<crate::report::CurvePoint> = Vec::new();
+    // Each row is written once the next iteration has run, so that the last one can
+    // take the final evaluation's numbers.
+    let mut pending: Option<IterationLog> = None;
     let mut scaler = crate::ppo::RewardScaler::default();
     for it in 1..=cfg.run.iterations {
         if shutdown.load(Ordering::Relaxed) {
@@ -650,8 +656,10 @@ pub fn run(
         if cfg.run.checkpoint_every > 0 && it.is_multiple_of(cfg.run.checkpoint_every) {
             save_checkpoint(&ckpt_dir, &vs, &prior_vs, &dvs, it)?;
         }
-        write_csv_row(&mut csv, &log)?;
         progress.iteration(&log);
+        if let Some(done) = pending.replace(log) {
+            write_csv_row(&mut csv, &done)?;
+        }
     }
     let wall = t_train.elapsed().as_secs_f64();
     save_checkpoint(&ckpt_dir, &vs, &prior_vs, &dvs, iters_done)?;
@@ -672,13 +680,10 @@ pub fn run(
         cfg.run.eval_episodes,
         seed ^ 0xF1AA,
     )?;
-    let last = IterationLog {
-        iteration: iters_done,
-        env_steps,
+    // The final evaluation completes the last iteration's row (no iteration ran: a
+    // row of iteration 0 for the untrained policy).
+    let mut last = pending.unwrap_or_else(|| IterationLog {
         wall_s: wall,
-        nmi: Some(result.nmi),
-        ent: Some(result.ent),
-        normalized_reward: Some(result.normalized_reward),
         prior: ppo
             .prior_probs()
             .iter()
@@ -686,7 +691,10 @@ pub fn run(
             .collect::<Vec<_>>()
             .join(";"),
         ..Default::default()
-    };
+    });
+    last.nmi = Some(result.nmi);
+    last.ent = Some(result.ent);
+    last.normalized_reward = Some(result.normalized_reward);
     write_csv_row(&mut csv, &last)?;
     csv.flush()?;
 
@@ -797,4 +805,63 @@ fn save_checkpoint(
         std::fs::copy(&p, &latest).with_context(|| format!("writing {}", latest.display()))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ess_proto::config::ConfigBuilder;
+
+    struct Quiet;
+    impl Progress for Quiet {
+        fn iteration(&mut self, _: &IterationLog) {}
+        fn message(&mut self, _: &str) {}
+    }
+
+    #[test]
+    fn metrics_csv_has_one_row_per_iteration_and_the_final_evaluation_in_the_last() {
+        let mut b = ConfigBuilder::new();
+        for kv in [
+            "run.iterations=3",
+            "run.eval_every=2",
+            "run.rollout_steps=200",
+            "disc.steps=2",
+            "disc.batch=32",
+            "ppo.epochs=1",
+            "ppo.minibatch=100",
+            "run.eval_episodes=2",
+            "run.eval_episodes_periodic=1",
+            "run.reference_episodes=2",
+            "demos.majority_episodes=4",
+            "run.actors=1",
+            "run.torch_threads=1",
+        ] {
+            b.set(kv).expect(kv);
+        }
+        let cfg = b.build().expect("config");
+        let dir = tempfile::tempdir().expect("tmp");
+        let out = run(&cfg, dir.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
+        let csv = std::fs::read_to_string(dir.path().join("metrics.csv")).expect("csv");
+        let mut lines = csv.lines();
+        assert_eq!(lines.next(), Some(CSV_HEADER));
+        let col = |name: &str| CSV_HEADER.split(',').position(|c| c == name).expect(name);
+        let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+        let iterations: Vec<&str> = rows.iter().map(|r| r[0]).collect();
+        assert_eq!(iterations, ["1", "2", "3"], "{csv}");
+        // Every row holds its iteration's training numbers.
+        for r in &rows {
+            for name in ["env_steps", "rollout_s", "ppo_s"] {
+                let v: f64 = r[col(name)].parse().expect(name);
+                assert!(v > 0.0, "{name} = {v} in {r:?}");
+            }
+        }
+        // Periodic evaluation at iteration 2, the final one in iteration 3's row.
+        let nmi = |i: usize| rows[i][col("nmi")];
+        assert_eq!(nmi(0), "", "{csv}");
+        assert!(!nmi(1).is_empty(), "{csv}");
+        let final_nmi: f64 = nmi(2).parse().expect("final nmi");
+        assert!((final_nmi - out.summary.nmi).abs() < 1e-6, "{csv}");
+        let ent: f64 = rows[2][col("ent")].parse().expect("final ent");
+        assert!((ent - out.summary.ent).abs() < 1e-6, "{csv}");
+    }
 }

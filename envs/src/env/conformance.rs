@@ -154,3 +154,55 @@ fn wrong_buffer_lengths_and_non_finite_actions_are_errors(name: &str, build: Bui
     env.step(&vec![0.0; spec.act_dim], &mut obs)
         .expect("valid step");
 }
+
+/// A bad-config case: the field, and how it spoils the default config.
+pub(crate) type BadParamCase<C> = (&'static str, fn(&mut C));
+
+/// Asserts that building from each case's config fails with [`EnvError::BadParam`]
+/// naming the case's field, in the variant and in the message.
+pub(crate) fn assert_bad_params<C: Default, T>(
+    build: impl Fn(C) -> Result<T, EnvError>,
+    cases: &[BadParamCase<C>],
+) {
+    for (field, spoil) in cases {
+        let mut cfg = C::default();
+        spoil(&mut cfg);
+        let Err(err) = build(cfg) else {
+            panic!("{field}: a bad config was accepted");
+        };
+        assert!(
+            matches!(err, EnvError::BadParam { field: f, .. } if f == *field),
+            "{field}: {err}"
+        );
+        assert!(err.to_string().contains(field), "{err}");
+    }
+}
+
+/// Asserts that `from_mjcf` turns a malformed MJCF string into [`EnvError::Model`] with
+/// our prefix, then MuJoCo's own parse message.
+pub(crate) fn assert_malformed_mjcf<T>(from_mjcf: impl Fn(&str) -> Result<T, EnvError>) {
+    let Err(err) = from_mjcf("<mujoco><worldbody><body>") else {
+        panic!("a malformed MJCF string was accepted");
+    };
+    assert!(matches!(err, EnvError::Model { .. }), "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.starts_with("invalid MJCF model: ") && msg.len() > 30,
+        "{msg}"
+    );
+}
+
+/// Asserts that `from_mjcf` rejects each case's MJCF with [`EnvError::Model`] whose
+/// message contains the case's text (what is wrong with the model).
+pub(crate) fn assert_wrong_shape_mjcf<T>(
+    from_mjcf: impl Fn(&str) -> Result<T, EnvError>,
+    cases: &[(String, &str)],
+) {
+    for (xml, want) in cases {
+        let Err(err) = from_mjcf(xml) else {
+            panic!("{want}: a model of the wrong shape was accepted");
+        };
+        assert!(matches!(err, EnvError::Model { .. }), "{want}: {err}");
+        assert!(err.to_string().contains(want), "{want}: {err}");
+    }
+}
