@@ -36,8 +36,9 @@
 use crate::weights::{MlpLayout, WeightsError};
 
 /// Output neurons per packed block: 16 `f32` accumulators are two AVX (four SSE)
-/// registers; 32 measured no faster on AVX2 and spills on SSE2, 8 leaves AVX2 latency
-/// bound.
+/// registers. In a prototype on the dev box, 32 was ~10% faster with AVX2 but ~5x
+/// slower on SSE2 (it did not stay in registers), and 8 was ~2x slower with AVX2 (one
+/// serial add chain per block).
 pub const BLOCK: usize = 16;
 
 /// A tanh MLP with its flat parameters.
