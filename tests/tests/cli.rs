@@ -169,6 +169,18 @@ fn env_defaults_apply_under_the_preset_and_set_overrides_them() {
     let reacher = out(&["train", "--env", "reacher", "--print-config"]);
     assert!(reacher.contains("n_modes = 6"), "{reacher}");
     assert!(reacher.contains("label_ratio = 0.005"), "{reacher}");
+    // Reacher's information-reward weights reach Ess-InfoGAIL (its preset leaves them to
+    // the defaults) but not GAIL, whose preset switches the terms off.
+    assert!(reacher.contains("reward_qc = 1.0"), "{reacher}");
+    let gail = out(&[
+        "train",
+        "--env",
+        "reacher",
+        "--preset",
+        "gail",
+        "--print-config",
+    ]);
+    assert!(gail.contains("reward_qc = 0.0"), "{gail}");
     let humanoid = out(&["train", "--env", "humanoid", "--print-config"]);
     assert!(humanoid.contains("n_modes = 3") && humanoid.contains("label_ratio = 0.02"));
     let set = out(&[
