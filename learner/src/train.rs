@@ -556,6 +556,15 @@ pub fn run(
             disc_logit: m.disc_reward == ess_proto::config::DiscReward::Logit,
             disc: m.reward_disc,
             qc: m.reward_qc * info_w,
+            qc_offset: if m.qc_reward_entropy {
+                ppo.prior_probs()
+                    .iter()
+                    .filter(|&&p| p > 0.0)
+                    .map(|&p| -f64::from(p) * f64::from(p).ln())
+                    .sum()
+            } else {
+                0.0
+            },
             qeps: if m.use_eps {
                 m.reward_qeps * info_w
             } else {

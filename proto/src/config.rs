@@ -196,6 +196,12 @@ pub struct MethodConfig {
     /// 4 (not 1): on Traj2D with imbalance 100, weaker weights let the discriminator
     /// pull the minority codes onto the majority modes (bench/README.md, tuning notes).
     pub reward_qc: f64,
+    /// Add the entropy `H(c)` of the current p(c) to the log Q_c reward, so that each
+    /// step's term is Eq. 2's mutual-information bound `log Q_c(c | s, a) + H(c)` rather
+    /// than `log Q_c` alone. The constant is >= 0 wherever Q_c beats chance; it matters
+    /// where episodes terminate (Walker2d, Humanoid): an always-negative reward teaches
+    /// the policy to fall early to stop collecting it.
+    pub qc_reward_entropy: bool,
     /// Policy reward weight of -|Q_eps(s, a) - eps| (lambda_1 in Eq. 3).
     pub reward_qeps: f64,
     /// Policy reward weight of the discriminator term.
@@ -235,6 +241,7 @@ impl Default for MethodConfig {
             rim_warmup_iters: 20,
             info_reward_warmup_iters: 0,
             reward_qc: 4.0,
+            qc_reward_entropy: false,
             reward_qeps: 0.5,
             reward_disc: 1.0,
             disc_reward: DiscReward::Logit,

@@ -1,8 +1,11 @@
 //! The policy's reward, the terms of Eq. 9 that depend on the policy:
 //!
 //! `r(s, a) = w_d * (-log(1 - D(s, a)))            // Eq. 1 (D = P(expert))
-//!          + w_c * sum_k c_k log Q_c(k | s, a)    // Eq. 5 / Eq. 2, lambda_2
+//!          + w_c * (sum_k c_k log Q_c(k | s, a) + h_c)  // Eq. 5 / Eq. 2, lambda_2
 //!          - w_eps * |Q_eps(s, a) - eps|          // Eq. 2 for eps (MAE), lambda_1`
+//!
+//! `h_c` is 0, or `H(c)` of the current p(c) so that the term is Eq. 2's bound
+//! `L_I = E[log Q(c | tau)] + H(c)` (`method.qc_reward_entropy`).
 //!
 //! `-log(1 - D) = softplus(logit)`, computed stably. The causal entropy `H(pi)` of
 //! Eq. 1 enters through PPO's entropy bonus instead.
@@ -18,6 +21,8 @@ pub struct RewardWeights {
     pub disc: f64,
     /// Latent skill term.
     pub qc: f64,
+    /// Constant added to `log Q_c` before weighting (`H(c)`, or 0).
+    pub qc_offset: f64,
     /// Latent shift term.
     pub qeps: f64,
 }
@@ -35,7 +40,7 @@ pub fn policy_reward(
     if w.qc != 0.0 {
         let lq =
             (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float);
-        r += lq * w.qc;
+        r += (lq + w.qc_offset) * w.qc;
     }
     if w.qeps != 0.0 {
         r -= (qeps - eps).abs() * w.qeps;
@@ -63,6 +68,7 @@ mod tests {
             disc_logit: false,
             disc: 1.0,
             qc: 0.5,
+            qc_offset: 0.0,
             qeps: 2.0,
         };
         let d = Tensor::from_slice(&[0.0f32]);
@@ -74,5 +80,23 @@ mod tests {
             f64::try_from(policy_reward(w, &d, &qc, &code, &qe, &eps).sum(Kind::Float)).unwrap();
         let want = 2f64.ln() + 0.5 * 0.5f64.ln() - 2.0 * 0.5;
         assert!((r - want).abs() < 1e-6, "{r} vs {want}");
+    }
+
+    #[test]
+    fn entropy_offset_makes_a_chance_level_q_c_reward_zero() {
+        // Q_c uniform over 4 codes and H(c) = ln 4: the bound log Q + H(c) is 0.
+        let w = RewardWeights {
+            disc_logit: true,
+            disc: 0.0,
+            qc: 3.0,
+            qc_offset: 4f64.ln(),
+            qeps: 0.0,
+        };
+        let d = Tensor::from_slice(&[5.0f32]);
+        let qc = t(&[0.3, 0.3, 0.3, 0.3], 4);
+        let code = t(&[0.0, 0.0, 1.0, 0.0], 4);
+        let e = Tensor::from_slice(&[0.0f32]);
+        let r = f64::try_from(policy_reward(w, &d, &qc, &code, &e, &e).sum(Kind::Float)).unwrap();
+        assert!(r.abs() < 1e-6, "{r}");
     }
 }
