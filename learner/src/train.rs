@@ -166,11 +166,11 @@ fn encoder_accuracy(disc: &Discriminator, x: &Tensor, mode: &Tensor, k: usize) -
         let p: Vec<i64> = Vec::try_from(&pred).unwrap_or_default();
         let t: Vec<i64> = Vec::try_from(&truth).unwrap_or_default();
         for (p, t) in p.iter().zip(&t) {
-            if let Ok(t) = usize::try_from(*t) {
-                if t < k {
-                    counts[t] += 1;
-                    hits[t] += u64::from(p == &(t as i64));
-                }
+            if let Ok(t) = usize::try_from(*t)
+                && t < k
+            {
+                counts[t] += 1;
+                hits[t] += u64::from(p == &(t as i64));
             }
         }
         start += len;
