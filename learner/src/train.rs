@@ -392,6 +392,8 @@ pub fn run(
     progress.message("training");
     let t_train = Instant::now();
     let mut env_steps = 0usize;
+    // Q_c's running estimate of the demos' mode marginal (`method.disc_code_reweight`).
+    let mut qc_marginal = vec![1.0 / k as f64; k];
     let mut phases = PhaseSeconds::default();
     let mut iters_done = 0;
     let mut interrupted = false;
@@ -448,8 +450,14 @@ pub fn run(
         // Eq. 8 pulls p(c) toward Q_c's label marginal on the unlabeled expert data.
         let prior_from_rim = m.prior == LatentPrior::Gumbel && m.rim_prior_grad;
         let batch = cfg.disc.batch as i64;
+        let gen_draw = m
+            .disc_code_reweight
+            .then(|| CodeReweight::new(&all.code, k, &qc_marginal));
         for step in 0..cfg.disc.steps {
-            let gi = Tensor::from_slice(&sample_idx(&mut rng, n_gen, batch));
+            let gi = match &gen_draw {
+                Some(d) => Tensor::from_slice(&d.sample(&mut rng, batch)),
+                None => Tensor::from_slice(&sample_idx(&mut rng, n_gen, batch)),
+            };
             let ei = Tensor::from_slice(&sample_idx(&mut rng, n_exp, batch));
             let xg = gen_x.index_select(0, &gi);
             let xe = expert.unlabeled.index_select(0, &ei);
@@ -460,6 +468,17 @@ pub fn run(
             };
             let og = disc.forward(&xg);
             let oe = disc.forward(&xe);
+            if m.disc_code_reweight {
+                // Running estimate of the mode marginal of the unlabeled demos.
+                let p = tensor_to_vec(&tch::no_grad(|| {
+                    oe.qc_logits
+                        .softmax(-1, Kind::Float)
+                        .mean_dim(0, false, Kind::Float)
+                }));
+                for (q, p) in qc_marginal.iter_mut().zip(&p) {
+                    *q = 0.99 * *q + 0.01 * f64::from(*p);
+                }
+            }
             let mut loss = Tensor::from(0.0f32);
             let bce = disc_bce(&oe.d_logit, &og.d_logit);
             loss += &bce * m.w_disc;
@@ -786,6 +805,52 @@ fn write_csv_row(w: &mut impl Write, l: &IterationLog) -> Result<()> {
     Ok(())
 }
 
+/// Draws generated transitions so that code `j` (its episode's `argmax c`) makes up a
+/// share `target[j]` of the batch (`method.disc_code_reweight`).
+struct CodeReweight {
+    /// Cumulative sampling weights, one per transition.
+    cumulative: Vec<f64>,
+}
+
+impl CodeReweight {
+    fn new(code: &[f32], k: usize, target: &[f64]) -> Self {
+        let codes: Vec<usize> = code
+            .chunks_exact(k.max(1))
+            .map(|c| {
+                c.iter()
+                    .enumerate()
+                    .fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b })
+                    .0
+            })
+            .collect();
+        let mut count = vec![0usize; k];
+        for &j in &codes {
+            count[j] += 1;
+        }
+        let mut acc = 0.0;
+        let cumulative = codes
+            .iter()
+            .map(|&j| {
+                acc += target.get(j).copied().unwrap_or(0.0).max(1e-6) / count[j] as f64;
+                acc
+            })
+            .collect();
+        Self { cumulative }
+    }
+
+    fn sample(&self, rng: &mut ChaCha8Rng, batch: i64) -> Vec<i64> {
+        let total = self.cumulative.last().copied().unwrap_or(0.0);
+        (0..batch)
+            .map(|_| {
+                let u = rng.random_range(0.0..total.max(f64::MIN_POSITIVE));
+                self.cumulative
+                    .partition_point(|&c| c <= u)
+                    .min(self.cumulative.len().saturating_sub(1)) as i64
+            })
+            .collect()
+    }
+}
+
 fn sample_idx(rng: &mut ChaCha8Rng, n: i64, batch: i64) -> Vec<i64> {
     (0..batch).map(|_| rng.random_range(0..n.max(1))).collect()
 }
@@ -825,6 +890,25 @@ mod tests {
     impl Progress for Quiet {
         fn iteration(&mut self, _: &IterationLog) {}
         fn message(&mut self, _: &str) {}
+    }
+
+    #[test]
+    fn code_reweighting_draws_each_code_at_its_target_share() {
+        // 80 transitions of code 0, 20 of code 1 (soft codes, argmax decides); the
+        // target marginal is the reverse.
+        let mut code = Vec::new();
+        for i in 0..100 {
+            code.extend_from_slice(if i < 80 { &[0.9f32, 0.1] } else { &[0.2, 0.8] });
+        }
+        let d = CodeReweight::new(&code, 2, &[0.2, 0.8]);
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let idx = d.sample(&mut rng, 20_000);
+        assert!(idx.iter().all(|&i| (0..100).contains(&i)));
+        let share1 = idx.iter().filter(|&&i| i >= 80).count() as f64 / idx.len() as f64;
+        assert!((share1 - 0.8).abs() < 0.02, "{share1}");
+        // Within a code, transitions are drawn evenly.
+        let first = idx.iter().filter(|&&i| i == 0).count() as f64 / idx.len() as f64;
+        assert!((first - 0.2 / 80.0).abs() < 0.002, "{first}");
     }
 
     #[test]

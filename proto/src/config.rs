@@ -214,6 +214,13 @@ pub struct MethodConfig {
     /// that make the generated data look like the (imbalanced) expert data (the
     /// min over p(c) of Eq. 9). 0: p(c) learns only through the PPO surrogate.
     pub prior_score_coef: f64,
+    /// Draw D's generated batch so that each code appears with the mode frequency Q_c
+    /// estimates on the unlabeled demos (a running mean of its predicted marginal)
+    /// instead of the rollout's code frequency. The rollouts keep sampling every code,
+    /// so minority codes still get trained, while D compares the expert data with a
+    /// generated mixture of the same mode proportions (the alignment the learnable p(c)
+    /// of Sec. 3 is for) and stops calling rare-but-expert states "policy".
+    pub disc_code_reweight: bool,
 }
 
 impl Default for MethodConfig {
@@ -246,6 +253,7 @@ impl Default for MethodConfig {
             reward_disc: 1.0,
             disc_reward: DiscReward::Logit,
             prior_score_coef: 0.0,
+            disc_code_reweight: false,
         }
     }
 }
