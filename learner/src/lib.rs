@@ -20,4 +20,5 @@ pub mod plot;
 pub mod ppo;
 pub mod presets;
 pub mod report;
+pub mod table;
 pub mod train;

@@ -44,6 +44,13 @@ enum Cmd {
     },
     /// List the method presets.
     Presets,
+    /// Table 1 view of finished runs: a row per run, mean ± std per env and method
+    /// beside the paper's value (Markdown).
+    Report {
+        /// Run directories (each holding a summary.json).
+        #[arg(required = true)]
+        runs: Vec<PathBuf>,
+    },
 }
 
 #[derive(Subcommand)]
@@ -520,6 +527,11 @@ fn main() {
         Cmd::Train(a) => train(a),
         Cmd::Demos { cmd } => demos(cmd),
         Cmd::Experts { cmd } => experts(cmd),
+        Cmd::Report { runs } => runs
+            .iter()
+            .map(|d| ess_learner::table::read_run(d).map_err(input_err))
+            .collect::<Result<Vec<_>>>()
+            .map(|rows| print!("{}", ess_learner::table::markdown(&rows))),
         Cmd::Presets => {
             for (name, text) in PRESETS {
                 let doc = text

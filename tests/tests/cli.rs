@@ -123,9 +123,11 @@ fn every_preset_trains_a_few_iterations_and_writes_its_outputs() {
         "ess-infogail-no-rim",
         "ess-infogail",
     ];
+    let root = tempfile::tempdir().unwrap();
+    let mut outs = Vec::new();
     for p in presets {
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("run");
+        let out = root.path().join(p);
+        outs.push(out.to_str().unwrap().to_string());
         let mut args = vec!["train", "--preset", p, "--out", out.to_str().unwrap()];
         args.extend_from_slice(SMOKE);
         let o = ess(&args);
@@ -161,6 +163,22 @@ fn every_preset_trains_a_few_iterations_and_writes_its_outputs() {
         let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
         assert_eq!(csv.lines().count(), 1 + 2, "{p}: {csv}");
     }
+    // `ess report` reads them all back: a row per run, a mean row per method.
+    let mut args = vec!["report"];
+    args.extend(outs.iter().map(String::as_str));
+    let o = ess(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = String::from_utf8_lossy(&o.stdout);
+    for p in presets {
+        assert!(
+            table.contains(&format!("| traj2d | {p} | 1 | ")),
+            "{p}: {table}"
+        );
+    }
+    // A directory without a summary is an input error naming the file.
+    let o = ess(&["report", root.path().to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("summary.json"), "{}", stderr(&o));
 }
 
 #[test]
