@@ -38,6 +38,11 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use std::time::{Duration, Instant};
 
+/// The iceoryx2 service kind of every port: inter-process, with thread-safe handles so
+/// the learner's ports can live in a `Send` [`crate::RolloutSource`] (same shared-memory
+/// resources as `ipc::Service`).
+pub type Ipc = iceoryx2::service::ipc_threadsafe::Service;
+
 /// How often an actor reports that it is alive, idle or busy.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(200);
 
@@ -154,12 +159,16 @@ pub fn service_name(run_id: &str, what: &str) -> Result<ServiceName, ShmTranspor
 
 /// Creates an iceoryx2 node; signal handling stays with the program (the learner has its
 /// own Ctrl-C handler; actors are stopped by the learner).
-pub fn node(name: &str) -> Result<Node<ipc::Service>, ShmTransportError> {
+///
+/// iceoryx2's own log goes to stderr at level error unless `IOX2_LOG_LEVEL` says otherwise
+/// (its default, warn, prints a notice about the absent config file on every start).
+pub fn node(name: &str) -> Result<Node<Ipc>, ShmTransportError> {
+    set_log_level_from_env_or(LogLevel::Error);
     let node_name = NodeName::new(name).map_err(ipc("node name", name))?;
     NodeBuilder::new()
         .name(&node_name)
         .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
+        .create::<Ipc>()
         .map_err(ipc("node create", name))
 }
 
@@ -169,27 +178,23 @@ pub struct Services {
     /// Run id.
     pub run_id: String,
     /// `weights` service.
-    pub weights:
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u64], ()>,
+    pub weights: iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [u64], ()>,
     /// `requests` service.
-    pub requests:
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Request, ()>,
+    pub requests: iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, Request, ()>,
     /// `chunks` service.
-    pub chunks:
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u64], ()>,
+    pub chunks: iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [u64], ()>,
     /// `status` service.
-    pub status:
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Status, ()>,
+    pub status: iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, Status, ()>,
     /// `wake-actors` event.
-    pub wake_actors: iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
+    pub wake_actors: iceoryx2::service::port_factory::event::PortFactory<Ipc>,
     /// `wake-learner` event.
-    pub wake_learner: iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
+    pub wake_learner: iceoryx2::service::port_factory::event::PortFactory<Ipc>,
 }
 
 impl Services {
     /// Opens or creates the run's services on `node`.
     pub fn open(
-        node: &Node<ipc::Service>,
+        node: &Node<Ipc>,
         run_id: &str,
         n_actors: usize,
     ) -> Result<Self, ShmTransportError> {
@@ -334,12 +339,12 @@ pub struct ActorSettings {
 
 /// The actor side of one process: ports plus the state reported in heartbeats.
 struct ActorPorts {
-    weights: Subscriber<ipc::Service, [u64], ()>,
-    requests: Subscriber<ipc::Service, Request, ()>,
-    chunks: Publisher<ipc::Service, [u64], ()>,
-    status: Publisher<ipc::Service, Status, ()>,
-    wake_learner: Notifier<ipc::Service>,
-    wake_me: Listener<ipc::Service>,
+    weights: Subscriber<Ipc, [u64], ()>,
+    requests: Subscriber<Ipc, Request, ()>,
+    chunks: Publisher<Ipc, [u64], ()>,
+    status: Publisher<Ipc, Status, ()>,
+    wake_learner: Notifier<Ipc>,
+    wake_me: Listener<Ipc>,
     index: u32,
     pid: u32,
     last_beat: Instant,

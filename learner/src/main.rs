@@ -113,6 +113,10 @@ struct TrainArgs {
     /// Print the resolved configuration and exit.
     #[arg(long)]
     print_config: bool,
+    /// Run N actors as `ess-actor` processes over iceoryx2 shared memory (sets
+    /// run.actors=N, run.transport="processes"); 0 keeps the in-process threads.
+    #[arg(long, value_name = "N")]
+    actors: Option<usize>,
 }
 
 #[derive(Subcommand)]
@@ -258,11 +262,22 @@ impl Progress for CliProgress {
     }
 }
 
-fn train(args: TrainArgs) -> Result<()> {
+fn train(mut args: TrainArgs) -> Result<()> {
+    match args.actors {
+        Some(0) => args.config.set.push("run.transport=\"threads\"".into()),
+        Some(n) => {
+            args.config.set.push(format!("run.actors={n}"));
+            args.config.set.push("run.transport=\"processes\"".into());
+        }
+        None => {}
+    }
     let cfg = resolve(&args.config)?;
     if args.print_config {
         print!("{}", cfg.to_toml());
         return Ok(());
+    }
+    if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
+        ess_learner::actors::actor_binary().map_err(input_err)?;
     }
     let out = args.out.unwrap_or_else(|| {
         PathBuf::from(format!(
@@ -337,7 +352,8 @@ fn train(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-/// A flag set by the first Ctrl-C (finish the iteration, save, stop); a second exits.
+/// A flag set by the first Ctrl-C or SIGTERM (finish the iteration, save, stop actor
+/// processes); a second exits.
 fn ctrl_c_flag() -> Result<Arc<AtomicBool>> {
     let shutdown = Arc::new(AtomicBool::new(false));
     let flag = shutdown.clone();

@@ -78,6 +78,18 @@ pub enum LatentPrior {
     Gumbel,
 }
 
+/// Where the actors run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ActorTransport {
+    /// Threads of the learner process (the in-process path and test double).
+    #[default]
+    Threads,
+    /// `ess-actor` processes feeding the learner over iceoryx2 shared memory
+    /// (`ess train --actors N`).
+    Processes,
+}
+
 /// Form of the discriminator's term in the policy reward.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -333,8 +345,12 @@ pub struct RunConfig {
     pub iterations: usize,
     /// Environment steps per iteration (paper code: 5000).
     pub rollout_steps: usize,
-    /// Actor workers (threads for now).
+    /// Actors, each stepping one environment (threads or processes, see `transport`).
+    /// Actor `i` seeds its random stream the same way on both transports.
     pub actors: usize,
+    /// Where the actors run: `threads` of the learner (default) or `processes`
+    /// (`ess-actor` over iceoryx2 shared memory; `ess train --actors N` selects it).
+    pub transport: ActorTransport,
     /// libtorch intra-op threads (0: one per core not used by actors).
     pub torch_threads: usize,
     /// Evaluate every this many iterations (0: only at the end).
@@ -357,6 +373,7 @@ impl Default for RunConfig {
             iterations: 300,
             rollout_steps: 5000,
             actors: 1,
+            transport: ActorTransport::Threads,
             torch_threads: 0,
             eval_every: 25,
             eval_episodes: 50,
