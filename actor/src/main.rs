@@ -64,6 +64,7 @@ fn main() -> Result<()> {
         index: a.index,
         n_actors: a.n_actors,
         max_steps: a.max_steps,
+        n_codes: a.n_codes,
         parent_pid: a.parent_pid,
     };
     run_actor(&settings, &mut worker)

@@ -19,6 +19,10 @@
 //! weights are older than the request, the weights) again, so a restarted actor or a lost
 //! notification costs one heartbeat period, never a hang.
 //!
+//! Memory: each actor's chunk publisher holds a few samples (subscriber buffer 2, one
+//! loan, iceoryx2's bookkeeping) of its largest chunk, e.g. about 6 x 15 MB in
+//! `/dev/shm` for one Humanoid actor taking a whole 5000-step rollout.
+//!
 //! Why the control messages live here and not in `ess-proto`: they are fixed-size
 //! `#[repr(C)]` structs sent as iceoryx2 payloads, which need iceoryx2's `ZeroCopySend`
 //! derive, and `ess-proto` stays free of transport crates. The variable-size layouts
@@ -231,7 +235,7 @@ impl Services {
             .max_publishers(ports)
             .max_subscribers(1)
             .history_size(0)
-            .subscriber_max_buffer_size(4)
+            .subscriber_max_buffer_size(2)
             .enable_safe_overflow(true)
             .open_or_create()
             .map_err(ipc("open_or_create", n.as_str()))?;
@@ -333,6 +337,8 @@ pub struct ActorSettings {
     pub n_actors: usize,
     /// Most steps one request asks for (sizes the chunk publisher).
     pub max_steps: usize,
+    /// Number of latent codes (sizes the chunk publisher).
+    pub n_codes: usize,
     /// Exit when the parent process goes away (the learner was killed).
     pub parent_pid: Option<u32>,
 }
@@ -411,9 +417,14 @@ pub fn run_actor(settings: &ActorSettings, worker: &mut Worker) -> Result<(), Sh
     let svc = Services::open(&node, run, settings.n_actors)?;
     let spec = worker.env().spec().clone();
     // Sized for the largest request; grows (power of two) should one ask for more.
-    let max_words = ShmChunkLayout::new(spec.obs_dim, spec.act_dim, 64, settings.max_steps)
-        .words()
-        .max(16);
+    let max_words = ShmChunkLayout::new(
+        spec.obs_dim,
+        spec.act_dim,
+        settings.n_codes,
+        settings.max_steps,
+    )
+    .words()
+    .max(16);
     let mut ports = ActorPorts {
         weights: svc
             .weights

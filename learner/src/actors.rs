@@ -395,15 +395,6 @@ impl RolloutSource for ShmActors {
             )));
         }
         let split = split_steps(steps, n);
-        if let Some(&most) = split.iter().max()
-            && most > self.cfg.max_steps
-        {
-            tracing::debug!(
-                most,
-                max = self.cfg.max_steps,
-                "chunk larger than sized for"
-            );
-        }
         self.weights_version = weights.version;
         self.last_weights = Some(weights.clone());
         self.publish_weights(&weights)?;
