@@ -128,6 +128,9 @@ struct Proc {
     last_seen: Option<Instant>,
     last_status: Option<Status>,
     last_resend: Instant,
+    /// Its first heartbeat just arrived: it may have missed what was sent before it
+    /// subscribed, so resend at once rather than after the resend period.
+    just_started: bool,
     restarts: u32,
 }
 
@@ -303,6 +306,7 @@ impl ShmActors {
             last_seen: None,
             last_status: None,
             last_resend: now,
+            just_started: false,
             restarts,
         })
     }
@@ -445,6 +449,7 @@ impl RolloutSource for ShmActors {
                 if s.pid != p.pid {
                     continue; // from a dead predecessor
                 }
+                p.just_started |= p.last_status.is_none();
                 p.last_seen = Some(now);
                 p.last_status = Some(s);
             }
@@ -518,9 +523,10 @@ impl RolloutSource for ShmActors {
                 if let Some(s) = p.last_status
                     && s.state == Status::IDLE
                     && s.last_done < rid
-                    && now.duration_since(p.last_resend) > 2 * HEARTBEAT_PERIOD
+                    && (p.just_started || now.duration_since(p.last_resend) > 2 * HEARTBEAT_PERIOD)
                 {
                     p.last_resend = now;
+                    p.just_started = false;
                     if s.weights_version != weights.version {
                         self.publish_weights(&weights)?;
                     }

@@ -141,6 +141,28 @@ fn one_actor_process_trains_to_the_same_numbers_as_one_thread() {
     assert_eq!(metrics_without_timings(&thr), metrics_without_timings(&prc));
 }
 
+#[test]
+fn two_runs_at_once_never_see_each_others_actors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let outs = [tmp.path().join("a"), tmp.path().join("b")];
+    let children: Vec<_> = outs.iter().map(|o| spawn_training(o, "2", "4")).collect();
+    for (c, o) in children.into_iter().zip(&outs) {
+        let r = c.wait_with_output().unwrap();
+        assert!(
+            r.status.success(),
+            "{}: {}",
+            o.display(),
+            String::from_utf8_lossy(&r.stderr)
+        );
+    }
+    // Same seed, same actors: identical runs, whatever the other run published.
+    assert_eq!(
+        metrics_without_timings(&outs[0]),
+        metrics_without_timings(&outs[1])
+    );
+    assert_eq!(summary(&outs[0])["env_steps"], 4 * 400);
+}
+
 /// Starts `ess train` with actor processes in the background.
 fn spawn_training(out: &Path, actors: &str, iterations: &str) -> std::process::Child {
     spawn_training_with(out, actors, iterations, &[])
