@@ -35,6 +35,7 @@ use ess_proto::shm::{
 };
 use ess_proto::weights::MlpLayout;
 use ess_proto::{Mlp, Step, StepSink};
+use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -174,6 +175,29 @@ pub fn node(name: &str) -> Result<Node<Ipc>, ShmTransportError> {
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
         .map_err(ipc("node create", name))
+}
+
+/// Names of the iceoryx2 nodes on this machine whose name contains `part` (learner
+/// nodes are `ess-learner-<run id>`, actor nodes `ess-actor-<run id>-<index>`), with
+/// `true` for a live node and `false` for a dead one whose resources are not cleaned up.
+pub fn nodes_named(part: &str) -> Result<Vec<(String, bool)>, ShmTransportError> {
+    let mut out = Vec::new();
+    Node::<Ipc>::list(Config::global_config(), |state| {
+        let (details, alive) = match &state {
+            NodeState::Alive(v) => (v.details().clone(), true),
+            NodeState::Dead(v) => (v.details().clone(), false),
+            NodeState::Inaccessible(_) | NodeState::Undefined(_) => (None, false),
+        };
+        if let Some(d) = details {
+            let name = d.name().to_string();
+            if name.contains(part) {
+                out.push((name, alive));
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ipc("list nodes", part))?;
+    Ok(out)
 }
 
 /// Opens (or creates) every service of a run with `n_actors` actors. Learner and actors
@@ -413,7 +437,7 @@ fn parent_gone(parent: Option<u32>) -> bool {
 /// from one request to the next exactly as on the threaded path.
 pub fn run_actor(settings: &ActorSettings, worker: &mut Worker) -> Result<(), ShmTransportError> {
     let run = settings.run_id.as_str();
-    let node = node(&format!("ess-actor-{}", settings.index))?;
+    let node = node(&format!("ess-actor-{run}-{}", settings.index))?;
     let svc = Services::open(&node, run, settings.n_actors)?;
     let spec = worker.env().spec().clone();
     // Sized for the largest request; grows (power of two) should one ask for more.

@@ -3,6 +3,7 @@
 //! numbers as one actor thread, `kill -9` of an actor or of the learner is survived, and no
 //! process is left behind.
 
+use ess_actor::shm::nodes_named;
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_learner::actors::{ShmActors, ShmActorsConfig, new_run_id};
 use ess_proto::config::LatentPrior;
@@ -87,11 +88,18 @@ fn process_chunks_equal_thread_chunks_in_every_field() {
     }
     // A version that does not increase is refused.
     assert!(procs.collect(weights(3), 10).is_err());
+    let run_id = procs.run_id().to_owned();
+    assert_eq!(nodes_named(&run_id).unwrap().len(), 3, "learner + 2 actors");
     drop(procs);
     assert_eq!(
         wait_gone(&pids, 5.0),
         Vec::<u32>::new(),
         "actors still running"
+    );
+    assert_eq!(
+        nodes_named(&run_id).unwrap(),
+        vec![],
+        "the run's iceoryx2 nodes are removed"
     );
 }
 
@@ -279,6 +287,8 @@ fn a_killed_learner_leaves_nothing_that_blocks_the_next_run() {
     wait_for_iteration(&out, 1, &mut child);
     let actors = children_of(child.id());
     assert_eq!(actors.len(), 2);
+    // Node names carry the run id, `<learner pid>-<time>`.
+    let run_part = format!("-{}-", child.id());
     child.kill().unwrap(); // SIGKILL: no cleanup in the learner
     child.wait().unwrap();
     assert_eq!(
@@ -294,6 +304,11 @@ fn a_killed_learner_leaves_nothing_that_blocks_the_next_run() {
     let o = ess(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(summary(&next)["env_steps"], 2 * 400);
+    assert_eq!(
+        nodes_named(&run_part).unwrap(),
+        vec![],
+        "the killed run's iceoryx2 resources were cleaned by the next one"
+    );
 }
 
 #[test]
