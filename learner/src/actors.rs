@@ -7,7 +7,7 @@
 //! event (never spinning) for chunks and heartbeats. A chunk is accepted only if it answers
 //! this rollout's request, was produced with this version, and has exactly the steps asked
 //! for; anything else is dropped with a log line. An actor whose process exited, or that
-//! sent no heartbeat for `heartbeat_timeout`, is killed, reaped, restarted and asked again
+//! sent no heartbeat for `heartbeat_timeout` (`run.actor_timeout_s`), is killed, reaped, restarted and asked again
 //! for its whole share (a partial chunk is never published, so nothing partial is kept).
 //!
 //! Children run in their own process group (a terminal Ctrl-C reaches only the learner,

@@ -238,13 +238,6 @@ fn rollout_source(
             Ok(Box::new(ThreadedActors::new(workers, latent)))
         }
         ActorTransport::Processes => {
-            let secs = |var: &str, default: f64| {
-                std::env::var(var)
-                    .ok()
-                    .and_then(|v| v.parse::<f64>().ok())
-                    .filter(|v| v.is_finite() && *v > 0.0)
-                    .unwrap_or(default)
-            };
             let actors = ShmActors::new(ShmActorsConfig {
                 run_id: new_run_id(),
                 binary: actor_binary()?,
@@ -253,14 +246,9 @@ fn rollout_source(
                 latent,
                 max_steps: cfg.run.rollout_steps.div_ceil(n),
                 seeds,
-                heartbeat_timeout: std::time::Duration::from_secs_f64(secs(
-                    "ESS_ACTOR_HEARTBEAT_TIMEOUT_S",
-                    3.0,
-                )),
-                startup_timeout: std::time::Duration::from_secs_f64(secs(
-                    "ESS_ACTOR_STARTUP_TIMEOUT_S",
-                    30.0,
-                )),
+                heartbeat_timeout: std::time::Duration::from_secs_f64(cfg.run.actor_timeout_s),
+                // Process start and env construction (MuJoCo model, expert weights).
+                startup_timeout: std::time::Duration::from_secs(30),
             })?;
             tracing::info!(run_id = actors.run_id(), pids = ?actors.pids(), "actor processes started");
             Ok(Box::new(actors))

@@ -351,6 +351,9 @@ pub struct RunConfig {
     /// Where the actors run: `threads` of the learner (default) or `processes`
     /// (`ess-actor` over iceoryx2 shared memory; `ess train --actors N` selects it).
     pub transport: ActorTransport,
+    /// Seconds without a heartbeat after which an actor process counts as hung and is
+    /// restarted (actors beat every 0.2 s, also while collecting).
+    pub actor_timeout_s: f64,
     /// libtorch intra-op threads (0: one per core not used by actors).
     pub torch_threads: usize,
     /// Evaluate every this many iterations (0: only at the end).
@@ -374,6 +377,7 @@ impl Default for RunConfig {
             rollout_steps: 5000,
             actors: 1,
             transport: ActorTransport::Threads,
+            actor_timeout_s: 3.0,
             torch_threads: 0,
             eval_every: 25,
             eval_episodes: 50,
@@ -720,6 +724,12 @@ impl TrainConfig {
             "run.actors",
             r.actors,
             "must be in 1..=256",
+        )?;
+        range(
+            r.actor_timeout_s.is_finite() && (0.5..=3600.0).contains(&r.actor_timeout_s),
+            "run.actor_timeout_s",
+            r.actor_timeout_s,
+            "must be in 0.5..=3600",
         )?;
         range(
             r.torch_threads <= 1024,

@@ -180,10 +180,9 @@ fn spawn_training_with(
     out: &Path,
     actors: &str,
     iterations: &str,
-    env: &[(&str, &str)],
+    extra: &[&str],
 ) -> std::process::Child {
     Command::new(ess_bin())
-        .envs(env.iter().copied())
         .args(["train", "--out", out.to_str().unwrap(), "--actors", actors])
         .args(SMOKE)
         .args([
@@ -194,6 +193,7 @@ fn spawn_training_with(
             "--set",
             "run.eval_every=0",
         ])
+        .args(extra)
         .env("RUST_LOG", "warn")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -260,8 +260,7 @@ fn a_killed_actor_is_restarted_and_the_run_completes() {
 fn a_hung_actor_is_detected_by_its_heartbeat_and_replaced() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
-    let mut child =
-        spawn_training_with(&out, "2", "100", &[("ESS_ACTOR_HEARTBEAT_TIMEOUT_S", "1")]);
+    let mut child = spawn_training_with(&out, "2", "100", &["--set", "run.actor_timeout_s=1"]);
     wait_for_iteration(&out, 1, &mut child);
     let actors = children_of(child.id());
     assert_eq!(actors.len(), 2);
