@@ -88,6 +88,11 @@ fn process_chunks_equal_thread_chunks_in_every_field() {
     }
     // A version that does not increase is refused.
     assert!(procs.collect(weights(3), 10).is_err());
+    // Fewer steps than actors: actor 1's share is empty and still answered.
+    let a = procs.collect(weights(4), 1).unwrap();
+    let b = threads.collect(weights(4), 1).unwrap();
+    assert_eq!((a[0].len(), a[1].len()), (1, 0));
+    assert_eq!(a, b);
     let run_id = procs.run_id().to_owned();
     assert_eq!(nodes_named(&run_id).unwrap().len(), 3, "learner + 2 actors");
     drop(procs);
