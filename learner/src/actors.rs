@@ -15,6 +15,14 @@
 //! learner dies. Dropping [`ShmActors`] sends a stop request, waits briefly, kills what is
 //! left, reaps every child and removes the dead nodes' iceoryx2 resources; creating one
 //! first removes the resources of dead nodes left by killed runs.
+//!
+//! Configuration: `run.actors` already counted the actor threads (default 1), so the
+//! choice of transport is a separate `run.transport` (`threads` | `processes`) rather than
+//! a special `run.actors = 0`; `ess train --actors N` sets both, `--actors 0` selects the
+//! threads. Actor `i` seeds its stream with `train::actor_seed` on either transport, which
+//! is why `--actors 1` reproduces the threaded run bit for bit. A restarted actor gets a
+//! different seed (its predecessor's episodes are not replayed), so a run with a restart is
+//! no longer bit-identical to one without.
 
 use ess_actor::shm::{
     HEARTBEAT_PERIOD, Ipc, Request, ShmTransportError, Status, node, weights_msg,
