@@ -19,9 +19,9 @@
 //! weights are older than the request, the weights) again, so a restarted actor or a lost
 //! notification costs one heartbeat period, never a hang.
 //!
-//! Memory: each actor's chunk publisher holds a few samples (subscriber buffer 2, one
-//! loan, iceoryx2's bookkeeping) of its largest chunk, e.g. about 6 x 15 MB in
-//! `/dev/shm` for one Humanoid actor taking a whole 5000-step rollout.
+//! Memory: each actor's chunk publisher reserves 5 samples (subscriber buffer 2, one loan,
+//! iceoryx2's bookkeeping) of its largest chunk, measured 76 MB of `/dev/shm` (apparent
+//! size; pages count once written) for one Humanoid actor taking a whole 5000-step rollout.
 //!
 //! Why the control messages live here and not in `ess-proto`: they are fixed-size
 //! `#[repr(C)]` structs sent as iceoryx2 payloads, which need iceoryx2's `ZeroCopySend`
