@@ -301,6 +301,28 @@ impl<'a> ShmChunkWriter<'a> {
     /// writes step by step through [`StepSink`].
     pub fn write_chunk(&mut self, c: &Chunk) -> Result<(), ShmError> {
         let (od, ad, k) = (c.obs_dim, c.act_dim, c.n_codes);
+        let n = c.len();
+        for (field, got, want) in [
+            ("obs", c.obs.len(), n * od),
+            ("next_obs", c.next_obs.len(), n * od),
+            ("pre_tanh", c.pre_tanh.len(), n * ad),
+            ("act", c.act.len(), n * ad),
+            ("code", c.code.len(), n * k),
+            ("gumbel", c.gumbel.len(), n * k),
+            ("eps", c.eps.len(), n),
+            ("terminated", c.terminated.len(), n),
+            ("truncated", c.truncated.len(), n),
+            ("env_reward", c.env_reward.len(), n),
+        ] {
+            if got != want {
+                return Err(ShmError::BadField {
+                    what: "chunk",
+                    field,
+                    value: got.to_string(),
+                    reason: "length differs from len x dims",
+                });
+            }
+        }
         for t in 0..c.len() {
             self.try_push(&Step {
                 obs: &c.obs[t * od..(t + 1) * od],
@@ -327,6 +349,23 @@ impl<'a> ShmChunkWriter<'a> {
             return Err(ShmError::Full { capacity: l.len });
         }
         let (od, ad, k) = (l.obs_dim, l.act_dim, l.n_codes);
+        for (field, got, want) in [
+            ("obs", s.obs.len(), od),
+            ("next_obs", s.next_obs.len(), od),
+            ("pre_tanh", s.pre_tanh.len(), ad),
+            ("act", s.act.len(), ad),
+            ("code", s.code.len(), k),
+            ("gumbel", s.gumbel.len(), k),
+        ] {
+            if got != want {
+                return Err(ShmError::BadField {
+                    what: "chunk step",
+                    field,
+                    value: got.to_string(),
+                    reason: "length differs from the chunk's dims",
+                });
+            }
+        }
         let a = &mut self.arrays;
         a.obs[t * od..(t + 1) * od].copy_from_slice(s.obs);
         a.next_obs[t * od..(t + 1) * od].copy_from_slice(s.next_obs);
@@ -887,6 +926,14 @@ mod tests {
             truncated: true,
             env_reward: 0.0,
         };
+        let short = Step {
+            obs: &z[..3],
+            ..step
+        };
+        assert!(matches!(
+            w.try_push(&short),
+            Err(ShmError::BadField { field: "obs", .. })
+        ));
         w.try_push(&step).unwrap();
         assert_eq!(w.try_push(&step), Err(ShmError::Full { capacity: 1 }));
         // A header claiming more steps than the buffer holds is refused, not over-read.
