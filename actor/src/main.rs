@@ -38,6 +38,12 @@ struct Args {
     /// Exit when this process is no longer our parent (the learner died).
     #[arg(long)]
     parent_pid: Option<u32>,
+    /// Build the env without its scripted/trained expert (`ess experts train`).
+    #[arg(long)]
+    plain_env: bool,
+    /// Record mode K's task reward as each step's env reward (`ess experts train`).
+    #[arg(long, value_name = "K")]
+    task_mode: Option<usize>,
 }
 
 fn main() -> Result<()> {
@@ -56,9 +62,18 @@ fn main() -> Result<()> {
             a.n_actors
         );
     }
-    let env = ess_envs::make_env(&a.env, a.n_modes)
-        .with_context(|| format!("building env `{}` with {} modes", a.env, a.n_modes))?;
+    let env: Box<dyn ess_envs::Env> = if a.plain_env {
+        ess_envs::make_plain_env(&a.env, a.n_modes)
+    } else {
+        ess_envs::make_env(&a.env, a.n_modes).map(|e| e as Box<dyn ess_envs::Env>)
+    }
+    .with_context(|| format!("building env `{}` with {} modes", a.env, a.n_modes))?;
     let mut worker = Worker::new(env, a.seed, a.n_codes);
+    if let Some(k) = a.task_mode {
+        worker = worker
+            .with_task_reward(k)
+            .with_context(|| format!("--task-mode {k}"))?;
+    }
     let settings = ActorSettings {
         run_id: a.run_id.clone(),
         index: a.index,

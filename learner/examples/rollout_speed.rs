@@ -93,6 +93,8 @@ fn main() -> Result<()> {
                     max_steps: steps.div_ceil(n),
                     heartbeat_timeout: Duration::from_secs(3),
                     startup_timeout: Duration::from_secs(30),
+                    plain_env: false,
+                    task_mode: None,
                 })?)
             };
             // Warm-up: process start, env construction, first episodes.

@@ -118,6 +118,10 @@ pub struct ShmActorsConfig {
     pub heartbeat_timeout: Duration,
     /// A newly started actor gets this long before its first heartbeat.
     pub startup_timeout: Duration,
+    /// Build envs without their experts (`make_plain_env`, expert training).
+    pub plain_env: bool,
+    /// Record this mode's task reward as the env reward (expert training).
+    pub task_mode: Option<usize>,
 }
 
 /// A run id unique on this machine: learner pid and start time.
@@ -277,7 +281,14 @@ impl ShmActors {
         // A restarted actor must not replay its predecessor's episodes.
         let seed =
             self.cfg.seeds[index] ^ (u64::from(restarts)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let child = Command::new(&self.cfg.binary)
+        let mut cmd = Command::new(&self.cfg.binary);
+        if self.cfg.plain_env {
+            cmd.arg("--plain-env");
+        }
+        if let Some(k) = self.cfg.task_mode {
+            cmd.arg("--task-mode").arg(k.to_string());
+        }
+        let child = cmd
             .arg("--run-id")
             .arg(&self.cfg.run_id)
             .arg("--index")

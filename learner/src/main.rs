@@ -49,7 +49,7 @@ enum Cmd {
 #[derive(Subcommand)]
 enum ExpertsCmd {
     /// Train one mode's expert with PPO on that mode's task reward (uses the `ppo` and
-    /// `run` config sections: rollout_steps, actors, torch_threads, seed).
+    /// `run` config sections: rollout_steps, actors, transport, torch_threads, seed).
     Train {
         #[command(flatten)]
         config: ConfigArgs,
@@ -377,6 +377,9 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
             resume,
         } => {
             let cfg = resolve(&config)?;
+            if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
+                ess_learner::actors::actor_binary().map_err(input_err)?;
+            }
             if mode >= cfg.env.n_modes {
                 return Err(input_err(format!(
                     "--mode {mode} is out of range: env {} has {} modes (0..{})",
@@ -401,6 +404,8 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
                 steps,
                 rollout_steps: cfg.run.rollout_steps,
                 actors: cfg.run.actors,
+                transport: cfg.run.transport,
+                actor_timeout_s: cfg.run.actor_timeout_s,
                 torch_threads: cfg.run.torch_threads.max(1),
                 seed: cfg.run.seed,
                 ppo: cfg.ppo.clone(),

@@ -249,6 +249,8 @@ fn rollout_source(
                 heartbeat_timeout: std::time::Duration::from_secs_f64(cfg.run.actor_timeout_s),
                 // Process start and env construction (MuJoCo model, expert weights).
                 startup_timeout: std::time::Duration::from_secs(30),
+                plain_env: false,
+                task_mode: None,
             })?;
             tracing::info!(run_id = actors.run_id(), pids = ?actors.pids(), "actor processes started");
             Ok(Box::new(actors))

@@ -56,6 +56,8 @@ fn shm_actors(seeds: &[u64], max_steps: usize) -> ShmActors {
         max_steps,
         heartbeat_timeout: Duration::from_secs(3),
         startup_timeout: Duration::from_secs(30),
+        plain_env: false,
+        task_mode: None,
     })
     .expect("starting actor processes")
 }
