@@ -10,7 +10,7 @@ bootstrap:
 	@bash scripts/bootstrap.sh
 
 build: bootstrap
-	@$(ENV) && cargo build --release --locked -p ess-learner --bin ess
+	@$(ENV) && cargo build --release --locked -p ess-learner --bin ess -p ess-actor --bin ess-actor
 
 ## The default training: Ess-InfoGAIL on the 2D trajectory task, seed 0.
 train: build
@@ -18,7 +18,7 @@ train: build
 
 ## Every test (unit, golden numbers, cross-process CLI), then format and lint checks.
 test: bootstrap
-	@$(ENV) && cargo build --locked -p ess-learner --bin ess
+	@$(ENV) && cargo build --locked -p ess-learner --bin ess -p ess-actor --bin ess-actor
 	@$(ENV) && cargo test --workspace --locked
 	@$(ENV) && cargo fmt --all --check
 	@$(ENV) && cargo clippy --workspace --all-targets --locked -- -D warnings

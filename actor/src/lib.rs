@@ -3,10 +3,12 @@
 //! Actors step environments under sampled latents `(c, eps)` with a pure-Rust forward
 //! pass of the policy (no libtorch here: see [`ess_proto::mlp`]), and hand the learner chunks of
 //! transitions through a [`transport::RolloutSource`]. Evaluation episodes with a given
-//! one-hot code run here too ([`rollout::eval_episode`]).
+//! one-hot code run here too ([`rollout::eval_episode`]). [`shm`] is the iceoryx2
+//! transport of actor processes (the `ess-actor` binary).
 
 pub mod policy;
 pub mod rollout;
+pub mod shm;
 pub mod transport;
 
 pub use ess_proto::Mlp;

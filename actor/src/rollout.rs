@@ -6,7 +6,8 @@
 
 use crate::policy::{Actor, LatentSpec, PolicyWeights};
 use ess_envs::{Env, EnvError};
-use ess_proto::Chunk;
+use ess_proto::shm::ShmError;
+use ess_proto::{Chunk, Step, StepSink};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -24,6 +25,15 @@ pub enum ActorError {
         /// What does not fit.
         what: String,
     },
+    /// A shared-memory buffer was refused.
+    #[error("shared memory: {0}")]
+    Shm(#[from] ShmError),
+    /// The transport between learner and actor processes failed.
+    #[error("actor transport: {what}")]
+    Transport {
+        /// What failed.
+        what: String,
+    },
     /// A worker thread is gone.
     #[error("actor worker {index} stopped: {why}")]
     WorkerGone {
@@ -32,6 +42,12 @@ pub enum ActorError {
         /// Why.
         why: String,
     },
+}
+
+impl From<std::convert::Infallible> for ActorError {
+    fn from(e: std::convert::Infallible) -> Self {
+        match e {}
+    }
 }
 
 /// Checks that `w` fits an env of `obs_dim`/`act_dim` and `n_codes` codes.
@@ -136,6 +152,24 @@ impl Worker {
         let s = self.env.spec();
         let mut chunk = Chunk::with_capacity(s.obs_dim, s.act_dim, latent.n_codes, n);
         chunk.policy_version = w.version;
+        self.collect_into(w, latent, n, &mut chunk)?;
+        Ok(chunk)
+    }
+
+    /// [`Worker::collect`] into any [`StepSink`]: an actor process writes the steps
+    /// straight into a loaned shared-memory sample. Same random stream, same steps.
+    pub fn collect_into<S>(
+        &mut self,
+        w: &PolicyWeights,
+        latent: &LatentSpec,
+        n: usize,
+        sink: &mut S,
+    ) -> Result<(), ActorError>
+    where
+        S: StepSink,
+        ActorError: From<S::Error>,
+    {
+        check_fit(self.env.as_ref(), w, latent)?;
         let mut actor = Actor::new(w);
         for _ in 0..n {
             if !self.in_episode {
@@ -160,16 +194,6 @@ impl Worker {
                 &mut self.act,
             );
             let out = self.env.step(&self.act, &mut self.next)?;
-            chunk.obs.extend_from_slice(&self.obs);
-            chunk.next_obs.extend_from_slice(&self.next);
-            chunk.pre_tanh.extend_from_slice(&self.pre);
-            chunk.act.extend_from_slice(&self.act);
-            chunk.logp.push(logp);
-            chunk.code.extend_from_slice(&self.code);
-            chunk.gumbel.extend_from_slice(&self.gumbel);
-            chunk.eps.push(self.eps);
-            chunk.terminated.push(out.terminated);
-            chunk.truncated.push(out.truncated);
             let r = match self.task_mode {
                 Some(k) => {
                     self.env.task_rewards(&mut self.task_rewards);
@@ -177,13 +201,25 @@ impl Worker {
                 }
                 None => 0.0,
             };
-            chunk.env_reward.push(r);
+            sink.push(&Step {
+                obs: &self.obs,
+                next_obs: &self.next,
+                pre_tanh: &self.pre,
+                act: &self.act,
+                logp,
+                code: &self.code,
+                gumbel: &self.gumbel,
+                eps: self.eps,
+                terminated: out.terminated,
+                truncated: out.truncated,
+                env_reward: r,
+            })?;
             std::mem::swap(&mut self.obs, &mut self.next);
             if out.terminated || out.truncated {
                 self.in_episode = false;
             }
         }
-        Ok(chunk)
+        Ok(())
     }
 }
 

@@ -2,8 +2,9 @@
 //!
 //! [`RolloutSource`] is what the learner calls once per iteration: publish the current
 //! weights, get back exactly `steps` transitions as one chunk per actor. The threaded
-//! implementation here is the in-process path (and later the test double of the
-//! shared-memory transport between processes).
+//! implementation here is the in-process path and the test double of the shared-memory
+//! transport between processes (`ess_learner::actors::ShmActors`, over [`crate::shm`]):
+//! with the same per-actor seeds both produce the same chunks.
 
 use crate::policy::{LatentSpec, PolicyWeights};
 use crate::rollout::{ActorError, Worker};

@@ -45,8 +45,12 @@ pub struct ExpertTrainConfig {
     pub steps: u64,
     /// Env steps per PPO iteration.
     pub rollout_steps: usize,
-    /// Rollout workers (threads).
+    /// Rollout workers.
     pub actors: usize,
+    /// Threads of this process or `ess-actor` processes (`run.transport`).
+    pub transport: ess_proto::config::ActorTransport,
+    /// Seconds without a heartbeat before an actor process is restarted.
+    pub actor_timeout_s: f64,
     /// libtorch intra-op threads.
     pub torch_threads: usize,
     /// Seed.
@@ -216,18 +220,41 @@ pub fn train_expert(
         env_steps = old.meta.trained_steps;
         first_iteration = (env_steps / cfg.rollout_steps as u64) as usize + 1;
     }
-    let workers: Vec<Worker> = (0..cfg.actors)
-        .map(|i| -> Result<Worker> {
-            let env = make_plain_env(&cfg.env, cfg.n_modes)?;
-            let seed = cfg
-                .seed
+    let seeds: Vec<u64> = (0..cfg.actors)
+        .map(|i| {
+            cfg.seed
                 .wrapping_mul(7_919)
                 .wrapping_add(env_steps)
-                .wrapping_add(i as u64);
-            Ok(Worker::new(env, seed, 1).with_task_reward(cfg.mode)?)
+                .wrapping_add(i as u64)
         })
-        .collect::<Result<_>>()?;
-    let mut actors = ThreadedActors::new(workers, latent);
+        .collect();
+    let mut actors: Box<dyn RolloutSource> = match cfg.transport {
+        ess_proto::config::ActorTransport::Threads => {
+            let workers: Vec<Worker> = seeds
+                .iter()
+                .map(|&seed| -> Result<Worker> {
+                    let env = make_plain_env(&cfg.env, cfg.n_modes)?;
+                    Ok(Worker::new(env, seed, 1).with_task_reward(cfg.mode)?)
+                })
+                .collect::<Result<_>>()?;
+            Box::new(ThreadedActors::new(workers, latent))
+        }
+        ess_proto::config::ActorTransport::Processes => Box::new(crate::actors::ShmActors::new(
+            crate::actors::ShmActorsConfig {
+                run_id: crate::actors::new_run_id(),
+                binary: crate::actors::actor_binary()?,
+                env: cfg.env.clone(),
+                n_modes: cfg.n_modes,
+                latent,
+                max_steps: cfg.rollout_steps.div_ceil(cfg.actors),
+                seeds,
+                heartbeat_timeout: std::time::Duration::from_secs_f64(cfg.actor_timeout_s),
+                startup_timeout: std::time::Duration::from_secs(30),
+                plain_env: true,
+                task_mode: Some(cfg.mode),
+            },
+        )?),
+    };
     if let Some(dir) = cfg.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }

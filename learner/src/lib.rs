@@ -1,5 +1,6 @@
 //! `ess-learner`: the learning side of Ess and the `ess` command.
 //!
+//! - [`actors`]: `ess-actor` processes over iceoryx2 shared memory ([`actors::ShmActors`]).
 //! - [`nets`]: tch networks (policy, value, discriminator body with D / Q_c / Q_eps heads).
 //! - [`objective`]: every objective term, one file each, headed by its equation.
 //! - [`ppo`]: PPO with GAE, including the p(c) update through Gumbel-softmax.
@@ -10,6 +11,7 @@
 //! - [`presets`]: the method presets, embedded in the binary.
 //! - [`plot`], [`report`]: PNG figures.
 
+pub mod actors;
 pub mod classifier;
 pub mod eval;
 pub mod experts;

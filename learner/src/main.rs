@@ -56,7 +56,7 @@ enum Cmd {
 #[derive(Subcommand)]
 enum ExpertsCmd {
     /// Train one mode's expert with PPO on that mode's task reward (uses the `ppo` and
-    /// `run` config sections: rollout_steps, actors, torch_threads, seed).
+    /// `run` config sections: rollout_steps, actors, transport, torch_threads, seed).
     Train {
         #[command(flatten)]
         config: ConfigArgs,
@@ -120,6 +120,10 @@ struct TrainArgs {
     /// Print the resolved configuration and exit.
     #[arg(long)]
     print_config: bool,
+    /// Run N actors as `ess-actor` processes over iceoryx2 shared memory (sets
+    /// run.actors=N, run.transport="processes"); 0 keeps the in-process threads.
+    #[arg(long, value_name = "N")]
+    actors: Option<usize>,
 }
 
 #[derive(Subcommand)]
@@ -271,11 +275,22 @@ impl Progress for CliProgress {
     }
 }
 
-fn train(args: TrainArgs) -> Result<()> {
+fn train(mut args: TrainArgs) -> Result<()> {
+    match args.actors {
+        Some(0) => args.config.set.push("run.transport=\"threads\"".into()),
+        Some(n) => {
+            args.config.set.push(format!("run.actors={n}"));
+            args.config.set.push("run.transport=\"processes\"".into());
+        }
+        None => {}
+    }
     let cfg = resolve(&args.config)?;
     if args.print_config {
         print!("{}", cfg.to_toml());
         return Ok(());
+    }
+    if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
+        ess_learner::actors::actor_binary().map_err(input_err)?;
     }
     let out = args.out.unwrap_or_else(|| {
         PathBuf::from(format!(
@@ -361,7 +376,8 @@ fn train(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-/// A flag set by the first Ctrl-C (finish the iteration, save, stop); a second exits.
+/// A flag set by the first Ctrl-C or SIGTERM (finish the iteration, save, stop actor
+/// processes); a second exits.
 fn ctrl_c_flag() -> Result<Arc<AtomicBool>> {
     let shutdown = Arc::new(AtomicBool::new(false));
     let flag = shutdown.clone();
@@ -385,6 +401,9 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
             resume,
         } => {
             let cfg = resolve(&config)?;
+            if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
+                ess_learner::actors::actor_binary().map_err(input_err)?;
+            }
             if mode >= cfg.env.n_modes {
                 return Err(input_err(format!(
                     "--mode {mode} is out of range: env {} has {} modes (0..{})",
@@ -409,6 +428,8 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
                 steps,
                 rollout_steps: cfg.run.rollout_steps,
                 actors: cfg.run.actors,
+                transport: cfg.run.transport,
+                actor_timeout_s: cfg.run.actor_timeout_s,
                 torch_threads: cfg.run.torch_threads.max(1),
                 seed: cfg.run.seed,
                 ppo: cfg.ppo.clone(),

@@ -6,6 +6,7 @@
 //! reward is computed with the updated heads; PPO updates policy, value and p(c).
 //! Periodic evaluations follow the paper's protocol ([`crate::eval`]).
 
+use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
 use crate::eval::{EvalResult, build_reference, evaluate};
 use crate::nets::{Discriminator, export_policy, tensor_2d, tensor_to_vec};
 use crate::objective::{
@@ -21,6 +22,7 @@ use crate::ppo::{PpoBatch, PpoLearner, PpoStats, chunks_gae, column};
 use anyhow::{Context, Result, bail};
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::{DemoSpec, Demos, generate_demos, make_env};
+use ess_proto::config::ActorTransport;
 use ess_proto::config::LatentPrior;
 use ess_proto::{CheckedConfig, Chunk};
 use rand::{Rng, SeedableRng};
@@ -266,6 +268,53 @@ pub struct RunOutput {
     pub summary: Summary,
 }
 
+/// Seed of actor `i`'s random stream: the same on both transports, so one actor process
+/// reproduces one actor thread step for step.
+pub fn actor_seed(seed: u64, i: usize) -> u64 {
+    seed.wrapping_mul(1_000_003).wrapping_add(i as u64)
+}
+
+/// The run's actors: threads of this process, or `ess-actor` processes over iceoryx2
+/// shared memory (`run.transport`).
+fn rollout_source(
+    cfg: &CheckedConfig,
+    latent: LatentSpec,
+    k: usize,
+) -> Result<Box<dyn RolloutSource>> {
+    let n = cfg.run.actors;
+    let seeds: Vec<u64> = (0..n).map(|i| actor_seed(cfg.run.seed, i)).collect();
+    match cfg.run.transport {
+        ActorTransport::Threads => {
+            let workers: Vec<Worker> = seeds
+                .iter()
+                .map(|&s| -> Result<Worker> {
+                    let env = make_env(&cfg.env.name, cfg.env.n_modes)?;
+                    Ok(Worker::new(env, s, k))
+                })
+                .collect::<Result<_>>()?;
+            Ok(Box::new(ThreadedActors::new(workers, latent)))
+        }
+        ActorTransport::Processes => {
+            let actors = ShmActors::new(ShmActorsConfig {
+                run_id: new_run_id(),
+                binary: actor_binary()?,
+                env: cfg.env.name.clone(),
+                n_modes: cfg.env.n_modes,
+                latent,
+                max_steps: cfg.run.rollout_steps.div_ceil(n),
+                seeds,
+                heartbeat_timeout: std::time::Duration::from_secs_f64(cfg.run.actor_timeout_s),
+                // Process start and env construction (MuJoCo model, expert weights).
+                startup_timeout: std::time::Duration::from_secs(30),
+                plain_env: false,
+                task_mode: None,
+            })?;
+            tracing::info!(run_id = actors.run_id(), pids = ?actors.pids(), "actor processes started");
+            Ok(Box::new(actors))
+        }
+    }
+}
+
 /// Trains with `cfg`, writing into `out`; stops early (and still writes everything)
 /// when `shutdown` is set.
 pub fn run(
@@ -369,17 +418,7 @@ pub fn run(
     let disc = Discriminator::new(dvs.root() / "disc", od + ad, &cfg.disc.hidden, k);
     let mut dopt = nn::Adam::default().build(&dvs, cfg.disc.lr)?;
 
-    let workers: Vec<Worker> = (0..cfg.run.actors)
-        .map(|i| -> Result<Worker> {
-            let env = make_env(&cfg.env.name, cfg.env.n_modes)?;
-            Ok(Worker::new(
-                env,
-                seed.wrapping_mul(1_000_003).wrapping_add(i as u64),
-                k,
-            ))
-        })
-        .collect::<Result<_>>()?;
-    let mut actors = ThreadedActors::new(workers, latent);
+    let mut actors = rollout_source(cfg, latent, k)?;
 
     let mut csv = std::io::BufWriter::new(
         std::fs::File::create(out.join("metrics.csv"))

@@ -87,3 +87,57 @@ impl Chunk {
         self.env_reward.extend_from_slice(&other.env_reward);
     }
 }
+
+/// One transition, borrowed: what a rollout loop hands a [`StepSink`].
+#[derive(Debug, Clone, Copy)]
+pub struct Step<'a> {
+    /// `[obs_dim]` observation before the step.
+    pub obs: &'a [f32],
+    /// `[obs_dim]` observation after the step.
+    pub next_obs: &'a [f32],
+    /// `[act_dim]` Gaussian sample before tanh.
+    pub pre_tanh: &'a [f32],
+    /// `[act_dim]` action sent.
+    pub act: &'a [f32],
+    /// Gaussian log-density of `pre_tanh`.
+    pub logp: f32,
+    /// `[n_codes]` soft latent code.
+    pub code: &'a [f32],
+    /// `[n_codes]` Gumbel noise.
+    pub gumbel: &'a [f32],
+    /// Shifting variable.
+    pub eps: f32,
+    /// Terminal state after the step.
+    pub terminated: bool,
+    /// Time limit after the step.
+    pub truncated: bool,
+    /// Task reward.
+    pub env_reward: f32,
+}
+
+/// Where a rollout loop puts its steps: an owned [`Chunk`], or a shared-memory sample
+/// ([`crate::shm::ShmChunkWriter`]) written in place.
+pub trait StepSink {
+    /// Why a push failed.
+    type Error;
+    /// Appends one step.
+    fn push(&mut self, s: &Step<'_>) -> Result<(), Self::Error>;
+}
+
+impl StepSink for Chunk {
+    type Error = std::convert::Infallible;
+    fn push(&mut self, s: &Step<'_>) -> Result<(), Self::Error> {
+        self.obs.extend_from_slice(s.obs);
+        self.next_obs.extend_from_slice(s.next_obs);
+        self.pre_tanh.extend_from_slice(s.pre_tanh);
+        self.act.extend_from_slice(s.act);
+        self.logp.push(s.logp);
+        self.code.extend_from_slice(s.code);
+        self.gumbel.extend_from_slice(s.gumbel);
+        self.eps.push(s.eps);
+        self.terminated.push(s.terminated);
+        self.truncated.push(s.truncated);
+        self.env_reward.push(s.env_reward);
+        Ok(())
+    }
+}

@@ -78,6 +78,18 @@ pub enum LatentPrior {
     Gumbel,
 }
 
+/// Where the actors run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ActorTransport {
+    /// Threads of the learner process (the in-process path and test double).
+    #[default]
+    Threads,
+    /// `ess-actor` processes feeding the learner over iceoryx2 shared memory
+    /// (`ess train --actors N`).
+    Processes,
+}
+
 /// Form of the discriminator's term in the policy reward.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -348,8 +360,15 @@ pub struct RunConfig {
     pub iterations: usize,
     /// Environment steps per iteration (paper code: 5000).
     pub rollout_steps: usize,
-    /// Actor workers (threads for now).
+    /// Actors, each stepping one environment (threads or processes, see `transport`).
+    /// Actor `i` seeds its random stream the same way on both transports.
     pub actors: usize,
+    /// Where the actors run: `threads` of the learner (default) or `processes`
+    /// (`ess-actor` over iceoryx2 shared memory; `ess train --actors N` selects it).
+    pub transport: ActorTransport,
+    /// Seconds without a heartbeat after which an actor process counts as hung and is
+    /// restarted (actors beat every 0.2 s, also while collecting).
+    pub actor_timeout_s: f64,
     /// libtorch intra-op threads (0: one per core not used by actors).
     pub torch_threads: usize,
     /// Evaluate every this many iterations (0: only at the end).
@@ -372,6 +391,8 @@ impl Default for RunConfig {
             iterations: 300,
             rollout_steps: 5000,
             actors: 1,
+            transport: ActorTransport::Threads,
+            actor_timeout_s: 3.0,
             torch_threads: 0,
             eval_every: 25,
             eval_episodes: 50,
@@ -799,6 +820,12 @@ impl TrainConfig {
             "run.actors",
             r.actors,
             "must be in 1..=256",
+        )?;
+        range(
+            r.actor_timeout_s.is_finite() && (0.5..=3600.0).contains(&r.actor_timeout_s),
+            "run.actor_timeout_s",
+            r.actor_timeout_s,
+            "must be in 0.5..=3600",
         )?;
         range(
             r.torch_threads <= 1024,

@@ -25,6 +25,60 @@ pub fn ess_bin() -> PathBuf {
     bin
 }
 
+/// Path of the `ess-actor` binary: `$ESS_ACTOR_BIN`, else beside `ess`.
+pub fn actor_bin() -> PathBuf {
+    if let Ok(p) = std::env::var("ESS_ACTOR_BIN") {
+        return PathBuf::from(p);
+    }
+    let bin = ess_bin().with_file_name("ess-actor");
+    assert!(
+        bin.exists(),
+        "{} not found: build it first (`cargo build -p ess-actor --bin ess-actor`, as `make test` does) or set ESS_ACTOR_BIN",
+        bin.display()
+    );
+    bin
+}
+
+/// Direct children of process `pid` (Linux `/proc`).
+pub fn children_of(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return out;
+    };
+    for t in tasks.flatten() {
+        if let Ok(s) = std::fs::read_to_string(t.path().join("children")) {
+            out.extend(s.split_whitespace().filter_map(|x| x.parse::<u32>().ok()));
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+/// True while process `pid` runs (a zombie, exited but not yet reaped, counts as gone).
+pub fn is_running(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        // Format: `pid (comm) state ...`; comm may hold spaces, so split after `)`.
+        Ok(s) => s
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().next())
+            .is_some_and(|state| state != "Z" && state != "X"),
+        Err(_) => false,
+    }
+}
+
+/// Waits up to `secs` for every pid in `pids` to stop running; returns those still running.
+pub fn wait_gone(pids: &[u32], secs: f64) -> Vec<u32> {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs_f64(secs);
+    loop {
+        let left: Vec<u32> = pids.iter().copied().filter(|&p| is_running(p)).collect();
+        if left.is_empty() || std::time::Instant::now() >= deadline {
+            return left;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
 /// Runs `ess` with `args`; returns its output.
 pub fn ess(args: &[&str]) -> Output {
     Command::new(ess_bin())

@@ -122,3 +122,54 @@ fn an_expert_of_another_task_is_an_input_error_naming_both() {
         "{err}"
     );
 }
+
+/// Tensor bytes of a safetensors file (after its JSON header, whose key order varies).
+fn tensor_bytes(path: &std::path::Path) -> Vec<u8> {
+    let b = std::fs::read(path).unwrap();
+    let n = u64::from_le_bytes(b[..8].try_into().unwrap()) as usize;
+    b[8 + n..].to_vec()
+}
+
+/// The CSV beside an expert file without its `seconds` column.
+fn csv_without_seconds(path: &std::path::Path) -> Vec<String> {
+    let text = std::fs::read_to_string(path.with_extension("safetensors.csv")).unwrap();
+    text.lines()
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            [&f[..4], &f[5..]].concat().join(",")
+        })
+        .collect()
+}
+
+#[test]
+fn expert_training_with_actor_processes_matches_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut outs = Vec::new();
+    for transport in ["threads", "processes"] {
+        let out = dir.path().join(transport).join("mode1.safetensors");
+        let out_s = out.to_string_lossy().into_owned();
+        let t = format!("run.transport=\"{transport}\"");
+        let mut args = vec![
+            "experts",
+            "train",
+            "--env",
+            "reacher",
+            "--set",
+            "env.n_modes=2",
+            "--mode",
+            "1",
+            "--out",
+            &out_s,
+            "--set",
+            "run.actors=2",
+            "--set",
+            &t,
+        ];
+        args.extend_from_slice(QUICK);
+        let o = ess(&args);
+        assert!(o.status.success(), "{transport}: {}", stderr(&o));
+        outs.push(out);
+    }
+    assert_eq!(tensor_bytes(&outs[0]), tensor_bytes(&outs[1]));
+    assert_eq!(csv_without_seconds(&outs[0]), csv_without_seconds(&outs[1]));
+}

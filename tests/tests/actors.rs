@@ -1,0 +1,407 @@
+//! Actor processes (`ess-actor`) feeding the learner over iceoryx2 shared memory: chunks
+//! arrive intact and equal to the in-process path's, one actor process trains to the same
+//! numbers as one actor thread, `kill -9` of an actor or of the learner is survived, and no
+//! process is left behind.
+
+use ess_actor::shm::nodes_named;
+use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
+use ess_learner::actors::{ShmActors, ShmActorsConfig, new_run_id};
+use ess_proto::config::LatentPrior;
+use ess_proto::weights::MlpLayout;
+use ess_proto::{Chunk, Mlp};
+use ess_tests::{SMOKE, actor_bin, children_of, ess, ess_bin, is_running, wait_gone};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+const ENV: &str = "traj2d";
+const OBS: usize = 10;
+const ACT: usize = 1;
+const K: usize = 4;
+
+fn latent() -> LatentSpec {
+    LatentSpec {
+        prior: LatentPrior::Gumbel,
+        n_codes: K,
+        tau: 0.1,
+        use_eps: true,
+    }
+}
+
+/// Deterministic non-trivial weights of version `version`.
+fn weights(version: u64) -> Arc<PolicyWeights> {
+    let layout = MlpLayout::new(OBS + 1 + K, &[8], ACT).unwrap();
+    let params = (0..layout.n_params())
+        .map(|i| ((i as f32 * 0.37 + version as f32).sin()) * 0.5)
+        .collect();
+    Arc::new(PolicyWeights {
+        version,
+        mean: Mlp::new(layout, params).unwrap(),
+        log_std: vec![-0.5],
+        prior_logits: vec![0.1 * version as f32, -0.2, 0.3, 0.0],
+        obs_mean: vec![0.05; OBS],
+        obs_std: vec![1.5; OBS],
+    })
+}
+
+fn shm_actors(seeds: &[u64], max_steps: usize) -> ShmActors {
+    ShmActors::new(ShmActorsConfig {
+        run_id: new_run_id(),
+        binary: actor_bin(),
+        env: ENV.into(),
+        n_modes: K,
+        latent: latent(),
+        seeds: seeds.to_vec(),
+        max_steps,
+        heartbeat_timeout: Duration::from_secs(3),
+        startup_timeout: Duration::from_secs(30),
+        plain_env: false,
+        task_mode: None,
+    })
+    .expect("starting actor processes")
+}
+
+#[test]
+fn process_chunks_equal_thread_chunks_in_every_field() {
+    let seeds = [11u64, 12];
+    let mut procs = shm_actors(&seeds, 300);
+    let pids = procs.pids();
+    assert_eq!(pids.len(), 2);
+    let workers = seeds
+        .iter()
+        .map(|&s| Worker::new(ess_envs::make_env(ENV, K).unwrap(), s, K))
+        .collect();
+    let mut threads = ThreadedActors::new(workers, latent());
+    // Uneven split (301 = 151 + 150), episodes that carry over between rollouts, and
+    // versions that only increase.
+    for version in 1..=3 {
+        let w = weights(version);
+        let a: Vec<Chunk> = procs.collect(w.clone(), 301).unwrap();
+        let b: Vec<Chunk> = threads.collect(w, 301).unwrap();
+        assert_eq!(a.len(), 2);
+        assert_eq!(a[0].len(), 151);
+        assert_eq!(a[1].len(), 150);
+        for c in &a {
+            assert_eq!(c.policy_version, version);
+        }
+        // Chunk's PartialEq compares every field; no NaN can occur here.
+        assert_eq!(a, b, "rollout of version {version}");
+    }
+    // A version that does not increase is refused.
+    assert!(procs.collect(weights(3), 10).is_err());
+    // Fewer steps than actors: actor 1's share is empty and still answered.
+    let a = procs.collect(weights(4), 1).unwrap();
+    let b = threads.collect(weights(4), 1).unwrap();
+    assert_eq!((a[0].len(), a[1].len()), (1, 0));
+    assert_eq!(a, b);
+    let run_id = procs.run_id().to_owned();
+    assert_eq!(nodes_named(&run_id).unwrap().len(), 3, "learner + 2 actors");
+    drop(procs);
+    assert_eq!(
+        wait_gone(&pids, 5.0),
+        Vec::<u32>::new(),
+        "actors still running"
+    );
+    assert_eq!(
+        nodes_named(&run_id).unwrap(),
+        vec![],
+        "the run's iceoryx2 nodes are removed"
+    );
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
+    serde_json::from_str(&text).expect("summary.json is JSON")
+}
+
+/// `metrics.csv` without its timing columns.
+fn metrics_without_timings(dir: &Path) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).expect("metrics.csv");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let keep: Vec<usize> = (0..header.len())
+        .filter(|&i| !header[i].ends_with("_s"))
+        .collect();
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            keep.iter().map(|&i| f[i].to_string()).collect()
+        })
+        .collect()
+}
+
+#[test]
+fn one_actor_process_trains_to_the_same_numbers_as_one_thread() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (thr, prc) = (tmp.path().join("threads"), tmp.path().join("processes"));
+    let run = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["train", "--seed", "3", "--out", out.to_str().unwrap()];
+        args.extend_from_slice(SMOKE);
+        args.extend_from_slice(&["--set", "run.reference_episodes=2"]);
+        args.extend_from_slice(extra);
+        let o = ess(&args);
+        assert!(
+            o.status.success(),
+            "{extra:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    run(&thr, &[]);
+    run(&prc, &["--actors", "1"]);
+    let (a, b) = (summary(&thr), summary(&prc));
+    for key in ["nmi", "ent", "normalized_reward", "env_steps"] {
+        assert_eq!(a[key], b[key], "summary.json `{key}`");
+    }
+    assert_eq!(metrics_without_timings(&thr), metrics_without_timings(&prc));
+}
+
+#[test]
+fn two_runs_at_once_never_see_each_others_actors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let outs = [tmp.path().join("a"), tmp.path().join("b")];
+    let children: Vec<_> = outs.iter().map(|o| spawn_training(o, "2", "4")).collect();
+    for (c, o) in children.into_iter().zip(&outs) {
+        let r = c.wait_with_output().unwrap();
+        assert!(
+            r.status.success(),
+            "{}: {}",
+            o.display(),
+            String::from_utf8_lossy(&r.stderr)
+        );
+    }
+    // Same seed, same actors: identical runs, whatever the other run published.
+    assert_eq!(
+        metrics_without_timings(&outs[0]),
+        metrics_without_timings(&outs[1])
+    );
+    assert_eq!(summary(&outs[0])["env_steps"], 4 * 400);
+}
+
+/// Starts `ess train` with actor processes in the background.
+fn spawn_training(out: &Path, actors: &str, iterations: &str) -> std::process::Child {
+    spawn_training_with(out, actors, iterations, &[])
+}
+
+fn spawn_training_with(
+    out: &Path,
+    actors: &str,
+    iterations: &str,
+    extra: &[&str],
+) -> std::process::Child {
+    Command::new(ess_bin())
+        .args(["train", "--out", out.to_str().unwrap(), "--actors", actors])
+        .args(SMOKE)
+        .args([
+            "--set",
+            &format!("run.iterations={iterations}"),
+            "--set",
+            "run.reference_episodes=2",
+            "--set",
+            "run.eval_every=0",
+        ])
+        .args(extra)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawning ess")
+}
+
+/// Waits until `metrics.csv` in `out` has a row for iteration `it`.
+fn wait_for_iteration(out: &Path, it: usize, child: &mut std::process::Child) {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        let rows = std::fs::read_to_string(out.join("metrics.csv"))
+            .map(|t| t.lines().count().saturating_sub(1))
+            .unwrap_or(0);
+        if rows >= it {
+            return;
+        }
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!("ess exited ({st}) before iteration {it}");
+        }
+        assert!(Instant::now() < deadline, "no iteration {it} in time");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_killed_actor_is_restarted_and_the_run_completes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut child = spawn_training(&out, "2", "60");
+    wait_for_iteration(&out, 2, &mut child);
+    let actors = children_of(child.id());
+    assert_eq!(actors.len(), 2, "two actor processes: {actors:?}");
+    let victim = actors[0];
+    let st = Command::new("kill")
+        .args(["-9", &victim.to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    // Its replacement appears while the run goes on.
+    let mut seen = actors.clone();
+    while child.try_wait().unwrap().is_none() {
+        for p in children_of(child.id()) {
+            if !seen.contains(&p) {
+                seen.push(p);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "ess failed: {err}");
+    assert!(
+        err.contains("restarted"),
+        "the log says an actor was restarted: {err}"
+    );
+    assert!(seen.len() >= 3, "a replacement actor was started: {seen:?}");
+    // Every iteration completed with the full rollout.
+    assert_eq!(summary(&out)["env_steps"], 60 * 400);
+    assert_eq!(wait_gone(&seen, 5.0), Vec::<u32>::new(), "left behind");
+}
+
+#[test]
+fn a_hung_actor_is_detected_by_its_heartbeat_and_replaced() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut child = spawn_training_with(&out, "2", "100", &["--set", "run.actor_timeout_s=1"]);
+    wait_for_iteration(&out, 1, &mut child);
+    let actors = children_of(child.id());
+    assert_eq!(actors.len(), 2);
+    // SIGSTOP: alive but silent, as a hung actor is.
+    let st = Command::new("kill")
+        .args(["-STOP", &actors[1].to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "ess failed: {err}");
+    assert!(err.contains("sent no heartbeat"), "{err}");
+    assert_eq!(summary(&out)["env_steps"], 100 * 400);
+    assert_eq!(wait_gone(&actors, 5.0), Vec::<u32>::new(), "left behind");
+}
+
+#[test]
+fn a_killed_learner_leaves_nothing_that_blocks_the_next_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("killed");
+    let mut child = spawn_training(&out, "2", "1000");
+    wait_for_iteration(&out, 1, &mut child);
+    let actors = children_of(child.id());
+    assert_eq!(actors.len(), 2);
+    // Node names carry the run id, `<learner pid>-<time>`.
+    let run_part = format!("-{}-", child.id());
+    child.kill().unwrap(); // SIGKILL: no cleanup in the learner
+    child.wait().unwrap();
+    assert_eq!(
+        wait_gone(&actors, 5.0),
+        Vec::<u32>::new(),
+        "orphaned actors exit by themselves"
+    );
+    // The next run starts, cleans the dead run's resources and trains.
+    let next = tmp.path().join("next");
+    let mut args = vec!["train", "--actors", "2", "--out", next.to_str().unwrap()];
+    args.extend_from_slice(SMOKE);
+    args.extend_from_slice(&["--set", "run.reference_episodes=2"]);
+    let o = ess(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(summary(&next)["env_steps"], 2 * 400);
+    assert_eq!(
+        nodes_named(&run_part).unwrap(),
+        vec![],
+        "the killed run's iceoryx2 resources were cleaned by the next one"
+    );
+}
+
+#[test]
+fn sigterm_stops_the_learner_and_its_actors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut child = spawn_training(&out, "2", "1000");
+    wait_for_iteration(&out, 1, &mut child);
+    let actors = children_of(child.id());
+    assert_eq!(actors.len(), 2);
+    let st = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let o = child.wait_with_output().unwrap();
+    assert!(
+        o.status.success(),
+        "a SIGTERM stops after the iteration and still writes everything: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.join("summary.json").exists());
+    assert_eq!(wait_gone(&actors, 5.0), Vec::<u32>::new());
+    assert!(actors.iter().all(|&p| !is_running(p)));
+}
+
+#[test]
+fn a_missing_actor_binary_is_named() {
+    let o = Command::new(ess_bin())
+        .args(["train", "--actors", "1"])
+        .args(SMOKE)
+        .env("ESS_ACTOR_BIN", "/nonexistent/ess-actor")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("/nonexistent/ess-actor"), "{err}");
+}
+
+#[test]
+fn ess_actor_refuses_bad_arguments_naming_them() {
+    let o = Command::new(actor_bin())
+        .args([
+            "--run-id",
+            "x",
+            "--index",
+            "3",
+            "--n-actors",
+            "2",
+            "--env",
+            ENV,
+            "--n-modes",
+            "4",
+            "--n-codes",
+            "4",
+            "--seed",
+            "0",
+            "--max-steps",
+            "10",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("--index 3"), "{err}");
+    let o = Command::new(actor_bin())
+        .args([
+            "--run-id",
+            "x",
+            "--index",
+            "0",
+            "--n-actors",
+            "1",
+            "--env",
+            "nope",
+            "--n-modes",
+            "4",
+            "--n-codes",
+            "4",
+            "--seed",
+            "0",
+            "--max-steps",
+            "10",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("nope"), "{err}");
+}
