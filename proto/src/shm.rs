@@ -193,6 +193,37 @@ fn region_lens(l: &ShmChunkLayout) -> [usize; 9] {
     ]
 }
 
+/// The header `H` at the start of `buf`: aligned, long enough, with `expected_magic` and
+/// this [`LAYOUT_VERSION`] (`magic_version` reads those two fields).
+fn checked_header<H: bytemuck::Pod>(
+    buf: &[u8],
+    what: &'static str,
+    expected_magic: u32,
+    magic_version: impl Fn(&H) -> (u32, u32),
+) -> Result<H, ShmError> {
+    let bytes = std::mem::size_of::<H>();
+    check_aligned(buf, what)?;
+    if buf.len() < bytes {
+        return Err(ShmError::TooShort {
+            what,
+            needed: bytes,
+            got: buf.len(),
+        });
+    }
+    let h: H =
+        *bytemuck::try_from_bytes(&buf[..bytes]).map_err(|_| ShmError::Misaligned { what })?;
+    let (magic, version) = magic_version(&h);
+    if magic != expected_magic || version != LAYOUT_VERSION {
+        return Err(ShmError::BadHeader {
+            what,
+            magic,
+            expected_magic,
+            version,
+        });
+    }
+    Ok(h)
+}
+
 fn check_aligned(buf: &[u8], what: &'static str) -> Result<(), ShmError> {
     if !(buf.as_ptr() as usize).is_multiple_of(8) {
         return Err(ShmError::Misaligned { what });
@@ -420,24 +451,9 @@ fn layout_of(h: &ShmChunkHeader) -> Result<ShmChunkLayout, ShmError> {
 
 /// Reads a chunk buffer's header, checked (magic, layout version, length).
 pub fn read_chunk_header(buf: &[u8]) -> Result<ShmChunkHeader, ShmError> {
-    check_aligned(buf, "chunk")?;
-    if buf.len() < HEADER_BYTES {
-        return Err(ShmError::TooShort {
-            what: "chunk",
-            needed: HEADER_BYTES,
-            got: buf.len(),
-        });
-    }
-    let h: ShmChunkHeader = *bytemuck::try_from_bytes(&buf[..HEADER_BYTES])
-        .map_err(|_| ShmError::Misaligned { what: "chunk" })?;
-    if h.magic != CHUNK_MAGIC || h.layout_version != LAYOUT_VERSION {
-        return Err(ShmError::BadHeader {
-            what: "chunk",
-            magic: h.magic,
-            expected_magic: CHUNK_MAGIC,
-            version: h.layout_version,
-        });
-    }
+    let h: ShmChunkHeader = checked_header(buf, "chunk", CHUNK_MAGIC, |h: &ShmChunkHeader| {
+        (h.magic, h.layout_version)
+    })?;
     let needed = layout_of(&h)?.bytes();
     if buf.len() < needed {
         return Err(ShmError::TooShort {
@@ -657,24 +673,10 @@ pub fn write_weights(buf: &mut [u8], w: &WeightsMsg) -> Result<(), ShmError> {
 
 /// Reads a weights buffer (checked) into a [`WeightsMsg`].
 pub fn read_weights(buf: &[u8]) -> Result<WeightsMsg, ShmError> {
-    check_aligned(buf, "weights")?;
-    if buf.len() < WHEADER_BYTES {
-        return Err(ShmError::TooShort {
-            what: "weights",
-            needed: WHEADER_BYTES,
-            got: buf.len(),
-        });
-    }
-    let h: ShmWeightsHeader = *bytemuck::try_from_bytes(&buf[..WHEADER_BYTES])
-        .map_err(|_| ShmError::Misaligned { what: "weights" })?;
-    if h.magic != WEIGHTS_MAGIC || h.layout_version != LAYOUT_VERSION {
-        return Err(ShmError::BadHeader {
-            what: "weights",
-            magic: h.magic,
-            expected_magic: WEIGHTS_MAGIC,
-            version: h.layout_version,
-        });
-    }
+    let h: ShmWeightsHeader =
+        checked_header(buf, "weights", WEIGHTS_MAGIC, |h: &ShmWeightsHeader| {
+            (h.magic, h.layout_version)
+        })?;
     let bad = |field, value: String, reason| ShmError::BadField {
         what: "weights",
         field,

@@ -356,52 +356,17 @@ fn a_missing_actor_binary_is_named() {
 
 #[test]
 fn ess_actor_refuses_bad_arguments_naming_them() {
-    let o = Command::new(actor_bin())
-        .args([
-            "--run-id",
-            "x",
-            "--index",
-            "3",
-            "--n-actors",
-            "2",
-            "--env",
-            ENV,
-            "--n-modes",
-            "4",
-            "--n-codes",
-            "4",
-            "--seed",
-            "0",
-            "--max-steps",
-            "10",
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
-    assert!(err.contains("--index 3"), "{err}");
-    let o = Command::new(actor_bin())
-        .args([
-            "--run-id",
-            "x",
-            "--index",
-            "0",
-            "--n-actors",
-            "1",
-            "--env",
-            "nope",
-            "--n-modes",
-            "4",
-            "--n-codes",
-            "4",
-            "--seed",
-            "0",
-            "--max-steps",
-            "10",
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
-    assert!(err.contains("nope"), "{err}");
+    // (index, n_actors, env, what the error must name)
+    for (index, n_actors, env, named) in [("3", "2", ENV, "--index 3"), ("0", "1", "nope", "nope")]
+    {
+        let o = Command::new(actor_bin())
+            .args(["--run-id", "x", "--index", index, "--n-actors", n_actors])
+            .args(["--env", env, "--n-modes", "4", "--n-codes", "4"])
+            .args(["--seed", "0", "--max-steps", "10"])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{named}");
+        assert!(err.contains(named), "{err}");
+    }
 }
