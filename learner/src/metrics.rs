@@ -159,7 +159,7 @@ impl Confusion {
 }
 
 /// Entropy (nats) of the distribution proportional to `weights`; 0 if they sum to 0.
-fn entropy<I: IntoIterator<Item = f64> + Clone>(weights: I) -> f64 {
+pub(crate) fn entropy<I: IntoIterator<Item = f64> + Clone>(weights: I) -> f64 {
     let total: f64 = weights.clone().into_iter().sum();
     if total <= 0.0 {
         return 0.0;

@@ -3,6 +3,7 @@
 //! standard deviation over seeds beside the paper's Table 1 value (the paper reports
 //! means over 10 seeds).
 
+use crate::metrics::mean_std;
 use crate::presets::paper_table1;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -103,20 +104,6 @@ pub fn read_run(dir: &Path) -> Result<RunRow, TableError> {
             .and_then(Value::as_bool)
             .unwrap_or(false),
     })
-}
-
-/// Mean and sample standard deviation (0 for a single value).
-pub fn mean_std(xs: &[f64]) -> (f64, f64) {
-    let n = xs.len() as f64;
-    if xs.is_empty() {
-        return (f64::NAN, f64::NAN);
-    }
-    let mean = xs.iter().sum::<f64>() / n;
-    if xs.len() < 2 {
-        return (mean, 0.0);
-    }
-    let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, var.sqrt())
 }
 
 /// The report as Markdown: a row per run, then a row per (env, method) with mean ± std.
@@ -228,12 +215,5 @@ mod tests {
         write(d.path(), "{not json");
         let e = read_run(d.path()).unwrap_err().to_string();
         assert!(e.contains("not JSON"), "{e}");
-    }
-
-    #[test]
-    fn std_of_one_value_is_zero() {
-        assert_eq!(mean_std(&[0.5]), (0.5, 0.0));
-        let (m, s) = mean_std(&[1.0, 2.0, 3.0]);
-        assert!((m - 2.0).abs() < 1e-12 && (s - 1.0).abs() < 1e-12);
     }
 }

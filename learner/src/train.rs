@@ -615,11 +615,7 @@ pub fn run(
             disc: m.reward_disc,
             qc: m.reward_qc * info_w,
             qc_offset: if m.qc_reward_entropy {
-                ppo.prior_probs()
-                    .iter()
-                    .filter(|&&p| p > 0.0)
-                    .map(|&p| -f64::from(p) * f64::from(p).ln())
-                    .sum()
+                crate::metrics::entropy(ppo.prior_probs().into_iter().map(f64::from))
             } else {
                 0.0
             },
