@@ -646,7 +646,14 @@ fn evaluate_and_publish(
     hash: u64,
 ) -> Result<(), ShmTransportError> {
     ports.beat(Status::BUSY)?;
-    let ep = crate::eval_episode(env, w, latent, r.code as usize, f32::from_bits(r.eps_bits), r.seed)?;
+    let ep = crate::eval_episode(
+        env,
+        w,
+        latent,
+        r.code as usize,
+        f32::from_bits(r.eps_bits),
+        r.seed,
+    )?;
     let spec = env.spec();
     let layout = ShmEpisodeLayout {
         obs_dim: spec.obs_dim,
@@ -678,7 +685,11 @@ fn evaluate_and_publish(
         .chunks
         .loan_slice(layout.words())
         .map_err(ipc("loan", "chunks"))?;
-    write_episode(bytemuck::cast_slice_mut(sample.payload_mut()), header, &arrays)?;
+    write_episode(
+        bytemuck::cast_slice_mut(sample.payload_mut()),
+        header,
+        &arrays,
+    )?;
     sample.send().map_err(ipc("send", "chunks"))?;
     ports.steps += header.len;
     ports.last_done = r.request_id;

@@ -442,7 +442,12 @@ impl ShmActors {
 
     /// Sends request `r` again if its actor reports itself idle without having answered
     /// it (a restarted actor, a lost notification), with the weights if it lacks them.
-    fn resend_if_idle(&mut self, r: Request, w: &PolicyWeights, now: Instant) -> Result<(), ActorError> {
+    fn resend_if_idle(
+        &mut self,
+        r: Request,
+        w: &PolicyWeights,
+        now: Instant,
+    ) -> Result<(), ActorError> {
         let p = &mut self.procs[r.actor as usize];
         if let Some(s) = p.last_status
             && s.state == Status::IDLE

@@ -1160,19 +1160,33 @@ mod tests {
             eps_bits: 0.5f32.to_bits(),
             ..Default::default()
         };
-        let l = ShmEpisodeLayout { obs_dim: od, act_dim: ad, n_modes: nm, len: n };
+        let l = ShmEpisodeLayout {
+            obs_dim: od,
+            act_dim: ad,
+            n_modes: nm,
+            len: n,
+        };
         let mut words = aligned(l.bytes());
         let short = l.bytes() - 8;
         assert!(matches!(
             write_episode(&mut bytemuck::cast_slice_mut(&mut words)[..short], h, &e),
-            Err(ShmError::TooShort { what: "episode", .. })
+            Err(ShmError::TooShort {
+                what: "episode",
+                ..
+            })
         ));
         write_episode(bytemuck::cast_slice_mut(&mut words), h, &e).unwrap();
         let (h2, back) = read_episode(bytemuck::cast_slice(&words)).unwrap();
-        assert_eq!((h2.job, h2.code, h2.eps_bits, h2.len), (11, 3, h.eps_bits, 7));
+        assert_eq!(
+            (h2.job, h2.code, h2.eps_bits, h2.len),
+            (11, 3, h.eps_bits, 7)
+        );
         assert_eq!(back, e);
         // A chunk is not an episode, and an episode is not a chunk.
-        assert!(matches!(read_chunk(bytemuck::cast_slice(&words)), Err(ShmError::BadHeader { .. })));
+        assert!(matches!(
+            read_chunk(bytemuck::cast_slice(&words)),
+            Err(ShmError::BadHeader { .. })
+        ));
         assert!(matches!(
             read_episode(&bytemuck::cast_slice::<u64, u8>(&words)[..l.bytes() - 8]),
             Err(ShmError::TooShort { .. })
