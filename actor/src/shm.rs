@@ -9,7 +9,7 @@
 //! |---|---|---|---|
 //! | `weights` | publish-subscribe, history 1 | `[u64]`: [`ess_proto::shm`] weights layout | learner -> actors |
 //! | `requests` | publish-subscribe | [`Request`] | learner -> actors |
-//! | `chunks` | publish-subscribe | `[u64]`: [`ess_proto::shm`] chunk layout | actors -> learner |
+//! | `chunks` | publish-subscribe | `[u64]`: [`ess_proto::shm`] chunk or evaluation-episode layout | actors -> learner |
 //! | `status` | publish-subscribe | [`Status`] (heartbeat) | actors -> learner |
 //! | `wake-actors` / `wake-learner` | event | event id = actor index | both ways |
 //!
@@ -18,6 +18,11 @@
 //! itself idle while the learner still waits for its chunk gets the request (and, if its
 //! weights are older than the request, the weights) again, so a restarted actor or a lost
 //! notification costs one heartbeat period, never a hang.
+//!
+//! Evaluation: a [`Request::EVALUATE`] names one episode (code, eps, reset seed, job
+//! index); the actor runs it on a second env of its own (built on first use, so its
+//! rollout episode carries over untouched) and publishes it as one episode sample on the
+//! `chunks` service. One episode in flight per actor keeps within the subscriber's buffer.
 //!
 //! Memory: each actor's chunk publisher reserves 5 samples (subscriber buffer 2, one loan,
 //! iceoryx2's bookkeeping) of its largest chunk, measured 76 MB of `/dev/shm` (apparent

@@ -10,6 +10,11 @@
 //! sent no heartbeat for `heartbeat_timeout` (`run.actor_timeout_s`), is killed, reaped, restarted and asked again
 //! for its whole share (a partial chunk is never published, so nothing partial is kept).
 //!
+//! Evaluation ([`EvalRunner`], reached through [`RolloutSource::evaluator`]) follows the
+//! same pattern one episode at a time: publish the evaluated weights, hand each free
+//! actor the next job, gather the episodes at their job's index, restart a dead or silent
+//! actor and ask it again for the job it held.
+//!
 //! Children run in their own process group (a terminal Ctrl-C reaches only the learner,
 //! which finishes its iteration and then stops them), and exit by themselves when the
 //! learner dies. Dropping [`ShmActors`] sends a stop request, waits briefly, kills what is
@@ -579,8 +584,8 @@ impl RolloutSource for ShmActors {
                 out[i] = Some(chunk);
             }
             // Faults, and actors that missed their request or weights.
-            for i in 0..n {
-                if self.supervise(i, now, &mut restarts_now)? || out[i].is_some() {
+            for (i, done) in out.iter().enumerate() {
+                if self.supervise(i, now, &mut restarts_now)? || done.is_some() {
                     continue;
                 }
                 self.resend_if_idle(request(i), &weights, now)?;
@@ -686,11 +691,11 @@ impl EvalRunner for ShmActors {
                 });
                 held[i] = None;
             }
-            for i in 0..n {
+            for (i, job) in held.iter().enumerate() {
                 if self.supervise(i, now, &mut restarts_now)? {
                     continue;
                 }
-                if let Some(r) = held[i] {
+                if let Some(r) = *job {
                     self.resend_if_idle(r, w, now)?;
                 }
             }
