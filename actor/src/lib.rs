@@ -14,4 +14,4 @@ pub mod transport;
 pub use ess_proto::Mlp;
 pub use policy::{Actor, LatentSpec, PolicyWeights, gumbel_softmax};
 pub use rollout::{ActorError, EvalEpisode, Worker, eval_episode};
-pub use transport::{RolloutSource, ThreadedActors, split_steps};
+pub use transport::{EvalJob, EvalRunner, LocalEval, RolloutSource, ThreadedActors, split_steps};

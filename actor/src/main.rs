@@ -62,12 +62,15 @@ fn main() -> Result<()> {
             a.n_actors
         );
     }
-    let env: Box<dyn ess_envs::Env> = if a.plain_env {
-        ess_envs::make_plain_env(&a.env, a.n_modes)
-    } else {
-        ess_envs::make_env(&a.env, a.n_modes).map(|e| e as Box<dyn ess_envs::Env>)
-    }
-    .with_context(|| format!("building env `{}` with {} modes", a.env, a.n_modes))?;
+    let build = |a: &Args| -> Result<Box<dyn ess_envs::Env>> {
+        if a.plain_env {
+            ess_envs::make_plain_env(&a.env, a.n_modes)
+        } else {
+            ess_envs::make_env(&a.env, a.n_modes).map(|e| e as Box<dyn ess_envs::Env>)
+        }
+        .with_context(|| format!("building env `{}` with {} modes", a.env, a.n_modes))
+    };
+    let env = build(&a)?;
     let mut worker = Worker::new(env, a.seed, a.n_codes);
     if let Some(k) = a.task_mode {
         worker = worker
@@ -82,6 +85,8 @@ fn main() -> Result<()> {
         n_codes: a.n_codes,
         parent_pid: a.parent_pid,
     };
-    run_actor(&settings, &mut worker)
+    // Evaluation episodes run on a second env of the same kind, built on first use.
+    let mut eval_env = || build(&a).map_err(|e| format!("{e:#}"));
+    run_actor(&settings, &mut worker, &mut eval_env)
         .with_context(|| format!("actor {} of run {}", a.index, a.run_id))
 }

@@ -9,7 +9,7 @@
 //! |---|---|---|---|
 //! | `weights` | publish-subscribe, history 1 | `[u64]`: [`ess_proto::shm`] weights layout | learner -> actors |
 //! | `requests` | publish-subscribe | [`Request`] | learner -> actors |
-//! | `chunks` | publish-subscribe | `[u64]`: [`ess_proto::shm`] chunk layout | actors -> learner |
+//! | `chunks` | publish-subscribe | `[u64]`: [`ess_proto::shm`] chunk or evaluation-episode layout | actors -> learner |
 //! | `status` | publish-subscribe | [`Status`] (heartbeat) | actors -> learner |
 //! | `wake-actors` / `wake-learner` | event | event id = actor index | both ways |
 //!
@@ -18,6 +18,11 @@
 //! itself idle while the learner still waits for its chunk gets the request (and, if its
 //! weights are older than the request, the weights) again, so a restarted actor or a lost
 //! notification costs one heartbeat period, never a hang.
+//!
+//! Evaluation: a [`Request::EVALUATE`] names one episode (code, eps, reset seed, job
+//! index); the actor runs it on a second env of its own (built on first use, so its
+//! rollout episode carries over untouched) and publishes it as one episode sample on the
+//! `chunks` service. One episode in flight per actor keeps within the subscriber's buffer.
 //!
 //! Memory: each actor's chunk publisher reserves 5 samples (subscriber buffer 2, one loan,
 //! iceoryx2's bookkeeping) of its largest chunk, measured 76 MB of `/dev/shm` (apparent
@@ -30,8 +35,10 @@
 
 use crate::policy::{LatentSpec, PolicyWeights};
 use crate::rollout::{ActorError, Worker};
+use ess_envs::Env;
 use ess_proto::shm::{
-    ShmChunkHeader, ShmChunkLayout, ShmChunkWriter, ShmError, WeightsMsg, read_weights, run_id_hash,
+    EpisodeArrays, ShmChunkHeader, ShmChunkLayout, ShmChunkWriter, ShmEpisodeHeader,
+    ShmEpisodeLayout, ShmError, WeightsMsg, read_weights, run_id_hash, write_episode,
 };
 use ess_proto::weights::MlpLayout;
 use ess_proto::{Mlp, Step, StepSink};
@@ -78,6 +85,9 @@ pub enum ShmTransportError {
     /// Acting failed.
     #[error(transparent)]
     Actor(#[from] ActorError),
+    /// The evaluation env could not be built.
+    #[error("building the evaluation env: {0}")]
+    EvalEnv(String),
     /// Weights that do not form a policy.
     #[error("weights version {version} do not form a policy: {why}")]
     BadWeights {
@@ -106,14 +116,22 @@ fn ipc<'a, E: std::fmt::Debug>(
 pub struct Request {
     /// Actor index this request is for.
     pub actor: u32,
-    /// [`Request::COLLECT`] or [`Request::STOP`].
+    /// [`Request::COLLECT`], [`Request::EVALUATE`] or [`Request::STOP`].
     pub kind: u32,
-    /// Increases with every rollout (resends keep it).
+    /// Increases with every rollout or evaluation job (resends keep it).
     pub request_id: u64,
     /// Weights version the steps must be taken with.
     pub policy_version: u64,
-    /// Steps to take.
+    /// Steps to take ([`Request::COLLECT`]).
     pub steps: u64,
+    /// One-hot code of the evaluation episode ([`Request::EVALUATE`]).
+    pub code: u32,
+    /// `f32::to_bits` of its latent noise eps.
+    pub eps_bits: u32,
+    /// Its env reset seed.
+    pub seed: u64,
+    /// Its index in the learner's list of evaluation jobs (echoed in the episode).
+    pub job: u64,
 }
 
 impl Request {
@@ -121,6 +139,10 @@ impl Request {
     pub const COLLECT: u32 = 0;
     /// Exit cleanly.
     pub const STOP: u32 = 1;
+    /// Run one deterministic evaluation episode ([`crate::eval_episode`]) with `code`,
+    /// `eps_bits`, `seed` and publish it as one episode sample
+    /// ([`ess_proto::shm::write_episode`]) on the `chunks` service.
+    pub const EVALUATE: u32 = 2;
 }
 
 /// An actor's heartbeat.
@@ -367,6 +389,10 @@ pub struct ActorSettings {
     pub parent_pid: Option<u32>,
 }
 
+/// Builds the env evaluation episodes run on (a second env of the actor, so that its
+/// rollout episode carries over untouched); called once, at the first evaluation request.
+pub type EvalEnvFactory<'a> = &'a mut dyn FnMut() -> Result<Box<dyn Env>, String>;
+
 /// The actor side of one process: ports plus the state reported in heartbeats.
 struct ActorPorts {
     weights: Subscriber<Ipc, [u64], ()>,
@@ -435,7 +461,11 @@ fn parent_gone(parent: Option<u32>) -> bool {
 /// The actor process's loop: wait for weights and requests, collect, publish, repeat,
 /// until a stop request or the parent's death. `worker` acts; its episode carries over
 /// from one request to the next exactly as on the threaded path.
-pub fn run_actor(settings: &ActorSettings, worker: &mut Worker) -> Result<(), ShmTransportError> {
+pub fn run_actor(
+    settings: &ActorSettings,
+    worker: &mut Worker,
+    make_eval_env: EvalEnvFactory<'_>,
+) -> Result<(), ShmTransportError> {
     let run = settings.run_id.as_str();
     let node = node(&format!("ess-actor-{run}-{}", settings.index))?;
     let svc = Services::open(&node, run, settings.n_actors)?;
@@ -494,6 +524,7 @@ pub fn run_actor(settings: &ActorSettings, worker: &mut Worker) -> Result<(), Sh
     let hash = run_id_hash(run);
     let mut policy: Option<(PolicyWeights, LatentSpec)> = None;
     let mut pending: Option<Request> = None;
+    let mut eval_env: Option<Box<dyn Env>> = None;
     ports.beat(Status::IDLE)?;
     loop {
         if parent_gone(settings.parent_pid) {
@@ -537,7 +568,15 @@ pub fn run_actor(settings: &ActorSettings, worker: &mut Worker) -> Result<(), Sh
             _ => false,
         };
         if let (true, Some(r), Some((w, latent))) = (ready, pending.take(), policy.as_ref()) {
-            collect_and_publish(&mut ports, worker, w, latent, &r, hash)?;
+            if r.kind == Request::EVALUATE {
+                let env = match &mut eval_env {
+                    Some(e) => e,
+                    None => eval_env.insert(make_eval_env().map_err(ShmTransportError::EvalEnv)?),
+                };
+                evaluate_and_publish(&mut ports, env.as_mut(), w, latent, &r, hash)?;
+            } else {
+                collect_and_publish(&mut ports, worker, w, latent, &r, hash)?;
+            }
             continue;
         }
         if ports.last_beat.elapsed() >= HEARTBEAT_PERIOD {
@@ -594,6 +633,70 @@ fn collect_and_publish(
         return Err(ShmError::Full { capacity: n }.into());
     }
     sample.send().map_err(ipc("send", "chunks"))?;
+    ports.last_done = r.request_id;
+    ports.beat(Status::IDLE)
+}
+
+/// Runs one evaluation episode and publishes it. The episode is built in owned `Vec`s by
+/// [`crate::eval_episode`] (the same function as the in-process path) and copied once into
+/// the loaned sample; an episode is short next to a rollout, so that copy is accepted. A
+/// heartbeat goes out before and after: one episode must take less than the learner's
+/// heartbeat timeout.
+fn evaluate_and_publish(
+    ports: &mut ActorPorts,
+    env: &mut dyn Env,
+    w: &PolicyWeights,
+    latent: &LatentSpec,
+    r: &Request,
+    hash: u64,
+) -> Result<(), ShmTransportError> {
+    ports.beat(Status::BUSY)?;
+    let ep = crate::eval_episode(
+        env,
+        w,
+        latent,
+        r.code as usize,
+        f32::from_bits(r.eps_bits),
+        r.seed,
+    )?;
+    let spec = env.spec();
+    let layout = ShmEpisodeLayout {
+        obs_dim: spec.obs_dim,
+        act_dim: spec.act_dim,
+        n_modes: ep.n_modes,
+        len: ep.len(),
+    };
+    let header = ShmEpisodeHeader {
+        run_id_hash: hash,
+        actor: ports.index,
+        code: ep.code as u32,
+        request_id: r.request_id,
+        policy_version: w.version,
+        job: r.job,
+        len: ep.len() as u64,
+        obs_dim: spec.obs_dim as u32,
+        act_dim: spec.act_dim as u32,
+        n_modes: ep.n_modes as u32,
+        eps_bits: ep.eps.to_bits(),
+        ..Default::default()
+    };
+    let arrays = EpisodeArrays {
+        obs: ep.obs,
+        act: ep.act,
+        next_obs: ep.next_obs,
+        mode_rewards: ep.mode_rewards,
+    };
+    let mut sample = ports
+        .chunks
+        .loan_slice(layout.words())
+        .map_err(ipc("loan", "chunks"))?;
+    write_episode(
+        bytemuck::cast_slice_mut(sample.payload_mut()),
+        header,
+        &arrays,
+    )?;
+    sample.send().map_err(ipc("send", "chunks"))?;
+    ports.steps += header.len;
     ports.last_done = r.request_id;
     ports.beat(Status::IDLE)
 }

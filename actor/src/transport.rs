@@ -7,7 +7,8 @@
 //! with the same per-actor seeds both produce the same chunks.
 
 use crate::policy::{LatentSpec, PolicyWeights};
-use crate::rollout::{ActorError, Worker};
+use crate::rollout::{ActorError, EvalEpisode, Worker, eval_episode};
+use ess_envs::Env;
 use ess_proto::Chunk;
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, Sender, channel};
@@ -24,6 +25,52 @@ pub trait RolloutSource: Send {
         weights: Arc<PolicyWeights>,
         steps: usize,
     ) -> Result<Vec<Chunk>, ActorError>;
+
+    /// Where evaluation episodes run: `None` (the default) runs them in the learner
+    /// process ([`LocalEval`], the threaded path); actor processes run them themselves.
+    fn evaluator(&mut self) -> Option<&mut dyn EvalRunner> {
+        None
+    }
+}
+
+/// One evaluation episode to run: deterministic policy with one-hot code `code`, latent
+/// noise `eps`, env reset with `seed`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvalJob {
+    /// One-hot code index.
+    pub code: usize,
+    /// Latent noise.
+    pub eps: f32,
+    /// Env reset seed.
+    pub seed: u64,
+}
+
+/// Runs evaluation episodes ([`eval_episode`]) and returns them in job order, whoever
+/// runs them; the seam behind which `ess_learner::eval::evaluate` does not care.
+pub trait EvalRunner {
+    /// Runs `jobs` with `w`; episode `i` of the result answers `jobs[i]`.
+    fn run_eval(
+        &mut self,
+        w: &PolicyWeights,
+        latent: &LatentSpec,
+        jobs: &[EvalJob],
+    ) -> Result<Vec<EvalEpisode>, ActorError>;
+}
+
+/// Evaluation in this process on one env, one episode after the other.
+pub struct LocalEval<'a>(pub &'a mut dyn Env);
+
+impl EvalRunner for LocalEval<'_> {
+    fn run_eval(
+        &mut self,
+        w: &PolicyWeights,
+        latent: &LatentSpec,
+        jobs: &[EvalJob],
+    ) -> Result<Vec<EvalEpisode>, ActorError> {
+        jobs.iter()
+            .map(|j| eval_episode(self.0, w, latent, j.code, j.eps, j.seed))
+            .collect()
+    }
 }
 
 /// Steps each actor takes for a rollout of `steps`.

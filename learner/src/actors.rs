@@ -10,6 +10,11 @@
 //! sent no heartbeat for `heartbeat_timeout` (`run.actor_timeout_s`), is killed, reaped, restarted and asked again
 //! for its whole share (a partial chunk is never published, so nothing partial is kept).
 //!
+//! Evaluation ([`EvalRunner`], reached through [`RolloutSource::evaluator`]) follows the
+//! same pattern one episode at a time: publish the evaluated weights, hand each free
+//! actor the next job, gather the episodes at their job's index, restart a dead or silent
+//! actor and ask it again for the job it held.
+//!
 //! Children run in their own process group (a terminal Ctrl-C reaches only the learner,
 //! which finishes its iteration and then stops them), and exit by themselves when the
 //! learner dies. Dropping [`ShmActors`] sends a stop request, waits briefly, kills what is
@@ -27,9 +32,12 @@
 use ess_actor::shm::{
     HEARTBEAT_PERIOD, Ipc, Request, ShmTransportError, Status, node, weights_msg,
 };
-use ess_actor::{ActorError, LatentSpec, PolicyWeights, RolloutSource, split_steps};
+use ess_actor::{
+    ActorError, EvalEpisode, EvalJob, EvalRunner, LatentSpec, PolicyWeights, RolloutSource,
+    split_steps,
+};
 use ess_proto::Chunk;
-use ess_proto::shm::{read_chunk, run_id_hash, write_weights};
+use ess_proto::shm::{read_chunk, read_episode, run_id_hash, write_weights};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -152,8 +160,12 @@ pub struct ShmActors {
     hash: u64,
     procs: Vec<Proc>,
     request_id: u64,
+    /// Last rollout's caller version (must increase).
     weights_version: u64,
-    last_weights: Option<Arc<PolicyWeights>>,
+    /// Version stamped on the wire: increases with every publish (rollouts and
+    /// evaluations), since an evaluation's weights may carry the caller version of the
+    /// rollout before them while holding different parameters.
+    wire_version: u64,
     weights: Publisher<Ipc, [u64], ()>,
     requests: Publisher<Ipc, Request, ()>,
     chunks: Subscriber<Ipc, [u64], ()>,
@@ -249,7 +261,7 @@ impl ShmActors {
             procs: Vec::with_capacity(n),
             request_id: 0,
             weights_version: 0,
-            last_weights: None,
+            wire_version: 0,
             weights,
             requests,
             chunks,
@@ -330,8 +342,10 @@ impl ShmActors {
         })
     }
 
-    fn publish_weights(&self, w: &PolicyWeights) -> Result<(), ActorError> {
-        let m = weights_msg(w, &self.cfg.latent, &self.cfg.run_id);
+    /// Publishes `w` stamped with wire version `version`.
+    fn publish_weights(&self, w: &PolicyWeights, version: u64) -> Result<(), ActorError> {
+        let mut m = weights_msg(w, &self.cfg.latent, &self.cfg.run_id);
+        m.version = version;
         let words = m.bytes() / 8;
         let mut sample = self
             .weights
@@ -373,6 +387,85 @@ impl ShmActors {
             .spawn(i, restarts)
             .map_err(|e| gone(i, format!("restarting: {e}")))?;
         self.procs[i] = fresh;
+        Ok(())
+    }
+
+    /// Takes every heartbeat that arrived: who is alive, who is idle.
+    fn drain_status(&mut self, now: Instant) -> Result<(), ActorError> {
+        while let Some(s) = self
+            .status
+            .receive()
+            .map_err(|e| transport(format!("receiving status: {e:?}")))?
+        {
+            let s = *s.payload();
+            let Some(p) = self.procs.get_mut(s.actor as usize) else {
+                continue;
+            };
+            if s.pid != p.pid {
+                continue; // from a dead predecessor
+            }
+            p.just_started |= p.last_status.is_none();
+            p.last_seen = Some(now);
+            p.last_status = Some(s);
+        }
+        Ok(())
+    }
+
+    /// Restarts actor `i` if its process exited or it sent no heartbeat in time; true if
+    /// it was restarted (its request then goes out again once the new one reports idle).
+    fn supervise(
+        &mut self,
+        i: usize,
+        now: Instant,
+        restarts_now: &mut [u32],
+    ) -> Result<bool, ActorError> {
+        let p = &mut self.procs[i];
+        let exited = match p.child.try_wait() {
+            Ok(Some(st)) => Some(format!("exited ({st})")),
+            Ok(None) => None,
+            Err(e) => Some(format!("cannot be waited on ({e})")),
+        };
+        let silent = match p.last_seen {
+            Some(t) => now.duration_since(t) > self.cfg.heartbeat_timeout,
+            None => now.duration_since(p.started) > self.cfg.startup_timeout,
+        };
+        let why = match (exited, silent) {
+            (Some(w), _) => w,
+            (None, true) => format!("sent no heartbeat for {:?}", self.cfg.heartbeat_timeout),
+            _ => return Ok(false),
+        };
+        restarts_now[i] += 1;
+        if restarts_now[i] > MAX_RESTARTS_PER_ROLLOUT {
+            return Err(gone(
+                i,
+                format!("{why}, after {MAX_RESTARTS_PER_ROLLOUT} restarts in one rollout"),
+            ));
+        }
+        self.restart(i, &why)?;
+        Ok(true)
+    }
+
+    /// Sends request `r` again if its actor reports itself idle without having answered
+    /// it (a restarted actor, a lost notification), with the weights if it lacks them.
+    fn resend_if_idle(
+        &mut self,
+        r: Request,
+        w: &PolicyWeights,
+        now: Instant,
+    ) -> Result<(), ActorError> {
+        let p = &mut self.procs[r.actor as usize];
+        if let Some(s) = p.last_status
+            && s.state == Status::IDLE
+            && s.last_done < r.request_id
+            && (p.just_started || now.duration_since(p.last_resend) > 2 * HEARTBEAT_PERIOD)
+        {
+            p.last_resend = now;
+            p.just_started = false;
+            if s.weights_version != r.policy_version {
+                self.publish_weights(w, r.policy_version)?;
+            }
+            self.send_request(r)?;
+        }
         Ok(())
     }
 
@@ -419,8 +512,9 @@ impl RolloutSource for ShmActors {
         }
         let split = split_steps(steps, n);
         self.weights_version = weights.version;
-        self.last_weights = Some(weights.clone());
-        self.publish_weights(&weights)?;
+        self.wire_version += 1;
+        let wire = self.wire_version;
+        self.publish_weights(&weights, wire)?;
         self.request_id += 1;
         let rid = self.request_id;
         let (od, ad, k) = (
@@ -442,8 +536,9 @@ impl RolloutSource for ShmActors {
             actor: i as u32,
             kind: Request::COLLECT,
             request_id: rid,
-            policy_version: weights.version,
+            policy_version: wire,
             steps: split[i] as u64,
+            ..Default::default()
         };
         for i in (0..n).filter(|&i| split[i] > 0) {
             self.send_request(request(i))?;
@@ -455,30 +550,14 @@ impl RolloutSource for ShmActors {
                 .timed_wait(|_| {}, HEARTBEAT_PERIOD / 2)
                 .map_err(|e| transport(format!("waiting for actors: {e:?}")))?;
             let now = Instant::now();
-            // Heartbeats: who is alive, who is idle without having answered.
-            while let Some(s) = self
-                .status
-                .receive()
-                .map_err(|e| transport(format!("receiving status: {e:?}")))?
-            {
-                let s = *s.payload();
-                let Some(p) = self.procs.get_mut(s.actor as usize) else {
-                    continue;
-                };
-                if s.pid != p.pid {
-                    continue; // from a dead predecessor
-                }
-                p.just_started |= p.last_status.is_none();
-                p.last_seen = Some(now);
-                p.last_status = Some(s);
-            }
+            self.drain_status(now)?;
             // Chunks.
             while let Some(sample) = self
                 .chunks
                 .receive()
                 .map_err(|e| transport(format!("receiving a chunk: {e:?}")))?
             {
-                let (h, chunk) = match read_chunk(bytemuck::cast_slice(sample.payload())) {
+                let (h, mut chunk) = match read_chunk(bytemuck::cast_slice(sample.payload())) {
                     Ok(x) => x,
                     Err(e) => {
                         tracing::warn!("dropping a malformed chunk: {e}");
@@ -489,7 +568,7 @@ impl RolloutSource for ShmActors {
                 let fits = h.run_id_hash == self.hash
                     && i < n
                     && h.request_id == rid
-                    && h.policy_version == weights.version
+                    && h.policy_version == wire
                     && h.len as usize == split[i]
                     && (od, ad, k) == (chunk.obs_dim, chunk.act_dim, chunk.n_codes);
                 if !fits || out[i].is_some() {
@@ -501,59 +580,130 @@ impl RolloutSource for ShmActors {
                     );
                     continue;
                 }
+                chunk.policy_version = weights.version;
                 out[i] = Some(chunk);
             }
             // Faults, and actors that missed their request or weights.
-            for i in 0..n {
-                let p = &mut self.procs[i];
-                let exited = match p.child.try_wait() {
-                    Ok(Some(st)) => Some(format!("exited ({st})")),
-                    Ok(None) => None,
-                    Err(e) => Some(format!("cannot be waited on ({e})")),
-                };
-                let silent = match p.last_seen {
-                    Some(t) => now.duration_since(t) > self.cfg.heartbeat_timeout,
-                    None => now.duration_since(p.started) > self.cfg.startup_timeout,
-                };
-                let why = match (exited, silent) {
-                    (Some(w), _) => Some(w),
-                    (None, true) => Some(format!(
-                        "sent no heartbeat for {:?}",
-                        self.cfg.heartbeat_timeout
-                    )),
-                    _ => None,
-                };
-                if let Some(why) = why {
-                    restarts_now[i] += 1;
-                    if restarts_now[i] > MAX_RESTARTS_PER_ROLLOUT {
-                        return Err(gone(
-                            i,
-                            format!(
-                                "{why}, after {MAX_RESTARTS_PER_ROLLOUT} restarts in one rollout"
-                            ),
-                        ));
-                    }
-                    self.restart(i, &why)?;
+            for (i, done) in out.iter().enumerate() {
+                if self.supervise(i, now, &mut restarts_now)? || done.is_some() {
                     continue;
                 }
-                if out[i].is_some() {
-                    continue;
-                }
-                if let Some(s) = p.last_status
-                    && s.state == Status::IDLE
-                    && s.last_done < rid
-                    && (p.just_started || now.duration_since(p.last_resend) > 2 * HEARTBEAT_PERIOD)
-                {
-                    p.last_resend = now;
-                    p.just_started = false;
-                    if s.weights_version != weights.version {
-                        self.publish_weights(&weights)?;
-                    }
-                    self.send_request(request(i))?;
-                }
+                self.resend_if_idle(request(i), &weights, now)?;
             }
         }
         Ok(out.into_iter().flatten().collect())
+    }
+
+    fn evaluator(&mut self) -> Option<&mut dyn EvalRunner> {
+        Some(self)
+    }
+}
+
+impl EvalRunner for ShmActors {
+    /// Hands the jobs out one at a time to whichever actor is free (one episode in
+    /// flight per actor, so the `chunks` service's per-actor buffer never overflows),
+    /// and puts every episode back at its job's index: the result depends neither on the
+    /// number of actors nor on who ran what. An actor that dies or goes silent is
+    /// restarted and asked again for the job it held, as during rollouts.
+    fn run_eval(
+        &mut self,
+        w: &PolicyWeights,
+        _latent: &LatentSpec,
+        jobs: &[EvalJob],
+    ) -> Result<Vec<EvalEpisode>, ActorError> {
+        let n = self.procs.len();
+        self.wire_version += 1;
+        let wire = self.wire_version;
+        self.publish_weights(w, wire)?;
+        let (od, ad) = (w.obs_mean.len(), w.log_std.len());
+        let mut out: Vec<Option<EvalEpisode>> = (0..jobs.len()).map(|_| None).collect();
+        let mut held: Vec<Option<Request>> = vec![None; n];
+        let mut next = 0;
+        let mut restarts_now = vec![0u32; n];
+        loop {
+            for (i, slot) in held.iter_mut().enumerate() {
+                if slot.is_none() && next < jobs.len() {
+                    let j = jobs[next];
+                    self.request_id += 1;
+                    let r = Request {
+                        actor: i as u32,
+                        kind: Request::EVALUATE,
+                        request_id: self.request_id,
+                        policy_version: wire,
+                        code: j.code as u32,
+                        eps_bits: j.eps.to_bits(),
+                        seed: j.seed,
+                        job: next as u64,
+                        ..Default::default()
+                    };
+                    self.send_request(r)?;
+                    self.procs[i].last_resend = Instant::now();
+                    *slot = Some(r);
+                    next += 1;
+                }
+            }
+            if held.iter().all(Option::is_none) {
+                break;
+            }
+            self.wake_me
+                .timed_wait(|_| {}, HEARTBEAT_PERIOD / 2)
+                .map_err(|e| transport(format!("waiting for actors: {e:?}")))?;
+            let now = Instant::now();
+            self.drain_status(now)?;
+            while let Some(sample) = self
+                .chunks
+                .receive()
+                .map_err(|e| transport(format!("receiving an episode: {e:?}")))?
+            {
+                let (h, e) = match read_episode(bytemuck::cast_slice(sample.payload())) {
+                    Ok(x) => x,
+                    Err(e) => {
+                        tracing::warn!("dropping a sample that is no evaluation episode: {e}");
+                        continue;
+                    }
+                };
+                let i = h.actor as usize;
+                let job = h.job as usize;
+                let fits = h.run_id_hash == self.hash
+                    && i < n
+                    && held[i].is_some_and(|r| r.request_id == h.request_id && r.job == h.job)
+                    && h.policy_version == wire
+                    && (od, ad) == (h.obs_dim as usize, h.act_dim as usize)
+                    && job < jobs.len()
+                    && out[job].is_none();
+                if !fits {
+                    tracing::warn!(
+                        actor = i,
+                        request = h.request_id,
+                        job,
+                        "dropping an episode that does not answer a pending job"
+                    );
+                    continue;
+                }
+                out[job] = Some(EvalEpisode {
+                    code: h.code as usize,
+                    eps: f32::from_bits(h.eps_bits),
+                    obs: e.obs,
+                    act: e.act,
+                    next_obs: e.next_obs,
+                    n_modes: h.n_modes as usize,
+                    mode_rewards: e.mode_rewards,
+                });
+                held[i] = None;
+            }
+            for (i, job) in held.iter().enumerate() {
+                if self.supervise(i, now, &mut restarts_now)? {
+                    continue;
+                }
+                if let Some(r) = *job {
+                    self.resend_if_idle(r, w, now)?;
+                }
+            }
+        }
+        out.into_iter()
+            .enumerate()
+            .map(|(j, e)| e.ok_or_else(|| transport(format!("evaluation job {j} has no episode"))))
+            .collect()
     }
 }
 

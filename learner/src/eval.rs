@@ -12,7 +12,7 @@
 
 use crate::classifier::BehaviourClassifier;
 use crate::metrics::{Confusion, best_assignment, ent, nmi, normalized_reward};
-use ess_actor::{EvalEpisode, LatentSpec, PolicyWeights, eval_episode};
+use ess_actor::{EvalEpisode, EvalJob, EvalRunner, LatentSpec, PolicyWeights};
 use ess_envs::{ScriptedExpert, expert_episode};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -121,35 +121,56 @@ pub struct EvalResult {
     pub episodes_per_code: usize,
 }
 
-/// Evaluates `w` with `episodes` deterministic episodes per code; returns the result
-/// and the episodes (for plots).
+/// The episodes of an evaluation: for each code in order, `episodes` jobs whose eps and
+/// reset seed are drawn from one stream seeded with `seed`.
+pub fn eval_jobs(n_codes: usize, episodes: usize, seed: u64) -> Vec<EvalJob> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut jobs = Vec::with_capacity(n_codes * episodes);
+    for code in 0..n_codes {
+        for _ in 0..episodes {
+            let eps = rng.random_range(-1.0..1.0);
+            jobs.push(EvalJob {
+                code,
+                eps,
+                seed: rng.random(),
+            });
+        }
+    }
+    jobs
+}
+
+/// Evaluates `w` with `episodes` deterministic episodes per code, run by `runner` (this
+/// process's eval env, or the actor processes: the jobs and their order are the same, so
+/// is the result); returns the result and the episodes (for plots).
 pub fn evaluate(
     reference: &Reference,
-    env: &mut dyn ScriptedExpert,
+    runner: &mut dyn EvalRunner,
     w: &PolicyWeights,
     latent: &LatentSpec,
     episodes: usize,
     seed: u64,
 ) -> anyhow::Result<(EvalResult, Vec<EvalEpisode>)> {
-    let spec = env.spec().clone();
-    let (k, od, ad) = (spec.n_modes, spec.obs_dim, spec.act_dim);
+    let k = reference.expert_return.len();
+    let (od, ad) = (w.obs_mean.len(), w.log_std.len());
     let n_codes = latent.n_codes;
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut confusion = Confusion::new(n_codes, k);
     let mut returns = vec![vec![0.0f64; k]; n_codes];
-    let mut all = Vec::with_capacity(n_codes * episodes);
-    for (code, code_returns) in returns.iter_mut().enumerate() {
-        for _ in 0..episodes {
-            let eps = rng.random_range(-1.0..1.0);
-            let ep = eval_episode(env, w, latent, code, eps, rng.random())?;
-            let rows = classifier_rows(&ep.next_obs, &ep.act, od, ad);
-            for class in reference.classifier.predict(&rows) {
-                confusion.add(code, class.min(k - 1))?;
-            }
-            for (m, r) in code_returns.iter_mut().enumerate() {
-                *r += ep.mode_return(m) as f64 / episodes as f64;
-            }
-            all.push(ep);
+    let jobs = eval_jobs(n_codes, episodes, seed);
+    let all = runner.run_eval(w, latent, &jobs)?;
+    anyhow::ensure!(
+        all.len() == jobs.len(),
+        "evaluation returned {} episodes for {} jobs",
+        all.len(),
+        jobs.len()
+    );
+    for ep in &all {
+        let code = ep.code;
+        let rows = classifier_rows(&ep.next_obs, &ep.act, od, ad);
+        for class in reference.classifier.predict(&rows) {
+            confusion.add(code, class.min(k - 1))?;
+        }
+        for (m, r) in returns[code].iter_mut().enumerate() {
+            *r += ep.mode_return(m) as f64 / episodes as f64;
         }
     }
     let assignment = best_assignment(&confusion);

@@ -20,7 +20,7 @@ use crate::objective::{
 };
 use crate::ppo::{PpoBatch, PpoLearner, PpoStats, chunks_gae, column};
 use anyhow::{Context, Result, bail};
-use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
+use ess_actor::{LatentSpec, LocalEval, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::{DemoSpec, Demos, generate_demos, make_env};
 use ess_proto::config::ActorTransport;
 use ess_proto::config::LatentPrior;
@@ -312,6 +312,23 @@ fn rollout_source(
             tracing::info!(run_id = actors.run_id(), pids = ?actors.pids(), "actor processes started");
             Ok(Box::new(actors))
         }
+    }
+}
+
+/// [`evaluate`] where the run's episodes run: in the actor processes when the actors
+/// offer it, else in this process on `env` (the threaded path).
+fn evaluate_on(
+    reference: &crate::eval::Reference,
+    actors: &mut dyn RolloutSource,
+    env: &mut dyn ess_envs::ScriptedExpert,
+    w: &PolicyWeights,
+    latent: &LatentSpec,
+    episodes: usize,
+    seed: u64,
+) -> Result<(EvalResult, Vec<ess_actor::EvalEpisode>)> {
+    match actors.evaluator() {
+        Some(runner) => evaluate(reference, runner, w, latent, episodes, seed),
+        None => evaluate(reference, &mut LocalEval(env), w, latent, episodes, seed),
     }
 }
 
@@ -703,8 +720,9 @@ pub fn run(
                 &obs_std,
                 it as u64,
             )?;
-            let (r, _) = evaluate(
+            let (r, _) = evaluate_on(
                 &reference,
+                actors.as_mut(),
                 eval_env.as_mut(),
                 &w,
                 &latent,
@@ -735,8 +753,9 @@ pub fn run(
         &obs_std,
         iters_done as u64,
     )?;
-    let (result, episodes) = evaluate(
+    let (result, episodes) = evaluate_on(
         &reference,
+        actors.as_mut(),
         eval_env.as_mut(),
         &w,
         &latent,

@@ -737,6 +737,195 @@ pub fn read_weights(buf: &[u8]) -> Result<WeightsMsg, ShmError> {
     })
 }
 
+/// `b"ESSE"`: first field of an evaluation-episode header.
+pub const EPISODE_MAGIC: u32 = u32::from_le_bytes(*b"ESSE");
+
+/// Fixed header of an evaluation-episode buffer (72 bytes): one deterministic episode
+/// with a given one-hot code, actor -> learner on the `chunks` service (told apart from
+/// a chunk by its magic).
+///
+/// Sizing: the buffer holds `len` steps of `obs`, `act`, `next_obs` and `mode_rewards`,
+/// `72 + 4 * len * (2 * obs_dim + act_dim + n_modes)` bytes ([`ShmEpisodeLayout`]). One
+/// episode travels as one sample, so the largest sample is the env's longest episode: a
+/// 1000-step Humanoid episode (obs 348, act 17, 3 modes) is 72 + 4 * 1000 * 716 bytes =
+/// 2.86 MB (2.73 MiB), slightly below a 1000-step Humanoid rollout chunk (2.96 MB). An
+/// actor's chunk publisher is sized for its rollout share and grows (power of two, so at
+/// most 4 MiB a sample here) when an episode is larger.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Pod, Zeroable)]
+pub struct ShmEpisodeHeader {
+    /// [`EPISODE_MAGIC`].
+    pub magic: u32,
+    /// [`LAYOUT_VERSION`].
+    pub layout_version: u32,
+    /// [`run_id_hash`] of the run.
+    pub run_id_hash: u64,
+    /// Index of the actor that ran the episode.
+    pub actor: u32,
+    /// The one-hot code index the policy was given.
+    pub code: u32,
+    /// Request the episode answers.
+    pub request_id: u64,
+    /// Version of the policy weights that acted.
+    pub policy_version: u64,
+    /// Index of the job in the learner's evaluation.
+    pub job: u64,
+    /// Steps of the episode.
+    pub len: u64,
+    /// Observation width.
+    pub obs_dim: u32,
+    /// Action width.
+    pub act_dim: u32,
+    /// Behaviour modes of the env (width of `mode_rewards`).
+    pub n_modes: u32,
+    /// `f32::to_bits` of the eps the policy was given.
+    pub eps_bits: u32,
+}
+
+const EHEADER_BYTES: usize = std::mem::size_of::<ShmEpisodeHeader>();
+
+/// Size of an evaluation-episode buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ShmEpisodeLayout {
+    /// Observation width.
+    pub obs_dim: usize,
+    /// Action width.
+    pub act_dim: usize,
+    /// Behaviour modes.
+    pub n_modes: usize,
+    /// Steps.
+    pub len: usize,
+}
+
+impl ShmEpisodeLayout {
+    /// Bytes of the whole buffer, header included, rounded up to 8.
+    pub fn bytes(&self) -> usize {
+        let floats = self.len * (2 * self.obs_dim + self.act_dim + self.n_modes);
+        (EHEADER_BYTES + 4 * floats).div_ceil(8) * 8
+    }
+
+    /// `u64` words of the whole buffer (the slice length to loan).
+    pub fn words(&self) -> usize {
+        self.bytes() / 8
+    }
+
+    fn of(h: &ShmEpisodeHeader) -> Result<Self, ShmError> {
+        let bad = |field, value: u64| ShmError::BadField {
+            what: "episode",
+            field,
+            value: value.to_string(),
+            reason: "too large",
+        };
+        for (field, v) in [
+            ("obs_dim", h.obs_dim),
+            ("act_dim", h.act_dim),
+            ("n_modes", h.n_modes),
+        ] {
+            if v > 1 << 20 {
+                return Err(bad(field, v.into()));
+            }
+        }
+        if h.len > 1 << 32 {
+            return Err(bad("len", h.len));
+        }
+        Ok(Self {
+            obs_dim: h.obs_dim as usize,
+            act_dim: h.act_dim as usize,
+            n_modes: h.n_modes as usize,
+            len: h.len as usize,
+        })
+    }
+}
+
+/// The arrays of one evaluation episode, `[len][dim]` each.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EpisodeArrays {
+    /// Observations before each step.
+    pub obs: Vec<f32>,
+    /// Actions.
+    pub act: Vec<f32>,
+    /// Observations after each step.
+    pub next_obs: Vec<f32>,
+    /// Evaluation reward of each mode per step.
+    pub mode_rewards: Vec<f32>,
+}
+
+/// Writes an episode into `buf` (8-byte aligned, at least [`ShmEpisodeLayout::bytes`]
+/// of `header`'s dims and length); the arrays' lengths must be `len x` their widths.
+pub fn write_episode(
+    buf: &mut [u8],
+    mut header: ShmEpisodeHeader,
+    e: &EpisodeArrays,
+) -> Result<(), ShmError> {
+    check_aligned(buf, "episode")?;
+    let l = ShmEpisodeLayout::of(&header)?;
+    if buf.len() < l.bytes() {
+        return Err(ShmError::TooShort {
+            what: "episode",
+            needed: l.bytes(),
+            got: buf.len(),
+        });
+    }
+    let n = l.len;
+    for (field, got, want) in [
+        ("obs", e.obs.len(), n * l.obs_dim),
+        ("act", e.act.len(), n * l.act_dim),
+        ("next_obs", e.next_obs.len(), n * l.obs_dim),
+        ("mode_rewards", e.mode_rewards.len(), n * l.n_modes),
+    ] {
+        if got != want {
+            return Err(ShmError::BadField {
+                what: "episode",
+                field,
+                value: got.to_string(),
+                reason: "length differs from len x dims",
+            });
+        }
+    }
+    header.magic = EPISODE_MAGIC;
+    header.layout_version = LAYOUT_VERSION;
+    let (hb, mut rest) = buf.split_at_mut(EHEADER_BYTES);
+    hb.copy_from_slice(bytemuck::bytes_of(&header));
+    for src in [&e.obs, &e.act, &e.next_obs, &e.mode_rewards] {
+        split_f32_mut(&mut rest, src.len())
+            .map_err(|_| ShmError::Misaligned { what: "episode" })?
+            .copy_from_slice(src);
+    }
+    Ok(())
+}
+
+/// Reads an episode buffer (checked) into its header and owned arrays.
+pub fn read_episode(buf: &[u8]) -> Result<(ShmEpisodeHeader, EpisodeArrays), ShmError> {
+    let h: ShmEpisodeHeader =
+        checked_header(buf, "episode", EPISODE_MAGIC, |h: &ShmEpisodeHeader| {
+            (h.magic, h.layout_version)
+        })?;
+    let l = ShmEpisodeLayout::of(&h)?;
+    if buf.len() < l.bytes() {
+        return Err(ShmError::TooShort {
+            what: "episode",
+            needed: l.bytes(),
+            got: buf.len(),
+        });
+    }
+    let n = l.len;
+    let mut rest = &buf[EHEADER_BYTES..];
+    let mut take = |m| {
+        split_f32(&mut rest, m)
+            .map(<[f32]>::to_vec)
+            .map_err(|_| ShmError::Misaligned { what: "episode" })
+    };
+    Ok((
+        h,
+        EpisodeArrays {
+            obs: take(n * l.obs_dim)?,
+            act: take(n * l.act_dim)?,
+            next_obs: take(n * l.obs_dim)?,
+            mode_rewards: take(n * l.n_modes)?,
+        },
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -944,6 +1133,63 @@ mod tests {
         assert!(matches!(
             read_chunk(buf),
             Err(ShmError::TooShort { what: "chunk", .. })
+        ));
+    }
+
+    #[test]
+    fn episode_roundtrip_preserves_every_field_and_refuses_chunks() {
+        let (od, ad, nm, n) = (3, 2, 4, 7);
+        let f = |m: usize, s: f32| (0..m).map(|i| i as f32 * 0.25 - s).collect::<Vec<f32>>();
+        let e = EpisodeArrays {
+            obs: f(n * od, 1.0),
+            act: f(n * ad, 2.0),
+            next_obs: f(n * od, 3.0),
+            mode_rewards: f(n * nm, 4.0),
+        };
+        let h = ShmEpisodeHeader {
+            run_id_hash: 9,
+            actor: 2,
+            code: 3,
+            request_id: 5,
+            policy_version: 6,
+            job: 11,
+            len: n as u64,
+            obs_dim: od as u32,
+            act_dim: ad as u32,
+            n_modes: nm as u32,
+            eps_bits: 0.5f32.to_bits(),
+            ..Default::default()
+        };
+        let l = ShmEpisodeLayout {
+            obs_dim: od,
+            act_dim: ad,
+            n_modes: nm,
+            len: n,
+        };
+        let mut words = aligned(l.bytes());
+        let short = l.bytes() - 8;
+        assert!(matches!(
+            write_episode(&mut bytemuck::cast_slice_mut(&mut words)[..short], h, &e),
+            Err(ShmError::TooShort {
+                what: "episode",
+                ..
+            })
+        ));
+        write_episode(bytemuck::cast_slice_mut(&mut words), h, &e).unwrap();
+        let (h2, back) = read_episode(bytemuck::cast_slice(&words)).unwrap();
+        assert_eq!(
+            (h2.job, h2.code, h2.eps_bits, h2.len),
+            (11, 3, h.eps_bits, 7)
+        );
+        assert_eq!(back, e);
+        // A chunk is not an episode, and an episode is not a chunk.
+        assert!(matches!(
+            read_chunk(bytemuck::cast_slice(&words)),
+            Err(ShmError::BadHeader { .. })
+        ));
+        assert!(matches!(
+            read_episode(&bytemuck::cast_slice::<u64, u8>(&words)[..l.bytes() - 8]),
+            Err(ShmError::TooShort { .. })
         ));
     }
 

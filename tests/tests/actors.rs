@@ -4,8 +4,9 @@
 //! process is left behind.
 
 use ess_actor::shm::nodes_named;
-use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
+use ess_actor::{LatentSpec, LocalEval, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_learner::actors::{ShmActors, ShmActorsConfig, new_run_id};
+use ess_learner::eval::{Reference, build_reference, evaluate};
 use ess_proto::config::LatentPrior;
 use ess_proto::weights::MlpLayout;
 use ess_proto::{Chunk, Mlp};
@@ -21,9 +22,13 @@ const ACT: usize = 1;
 const K: usize = 4;
 
 fn latent() -> LatentSpec {
+    latent_k(K)
+}
+
+fn latent_k(k: usize) -> LatentSpec {
     LatentSpec {
         prior: LatentPrior::Gumbel,
-        n_codes: K,
+        n_codes: k,
         tau: 0.1,
         use_eps: true,
     }
@@ -31,35 +36,149 @@ fn latent() -> LatentSpec {
 
 /// Deterministic non-trivial weights of version `version`.
 fn weights(version: u64) -> Arc<PolicyWeights> {
-    let layout = MlpLayout::new(OBS + 1 + K, &[8], ACT).unwrap();
+    weights_for(OBS, ACT, K, version, 0.0)
+}
+
+/// Deterministic non-trivial weights for an env's dims; `shift` changes the parameters
+/// without changing the version.
+fn weights_for(od: usize, ad: usize, k: usize, version: u64, shift: f32) -> Arc<PolicyWeights> {
+    let layout = MlpLayout::new(od + 1 + k, &[8], ad).unwrap();
     let params = (0..layout.n_params())
-        .map(|i| ((i as f32 * 0.37 + version as f32).sin()) * 0.5)
+        .map(|i| ((i as f32 * 0.37 + version as f32 + shift).sin()) * 0.5)
         .collect();
+    let mut prior_logits: Vec<f32> = (0..k).map(|j| 0.1 * j as f32 - 0.2).collect();
+    prior_logits[0] = 0.1 * version as f32;
     Arc::new(PolicyWeights {
         version,
         mean: Mlp::new(layout, params).unwrap(),
-        log_std: vec![-0.5],
-        prior_logits: vec![0.1 * version as f32, -0.2, 0.3, 0.0],
-        obs_mean: vec![0.05; OBS],
-        obs_std: vec![1.5; OBS],
+        log_std: vec![-0.5; ad],
+        prior_logits,
+        obs_mean: vec![0.05; od],
+        obs_std: vec![1.5; od],
     })
 }
 
 fn shm_actors(seeds: &[u64], max_steps: usize) -> ShmActors {
+    shm_actors_on(ENV, K, seeds, max_steps, Duration::from_secs(3))
+}
+
+fn shm_actors_on(
+    env: &str,
+    k: usize,
+    seeds: &[u64],
+    max_steps: usize,
+    heartbeat_timeout: Duration,
+) -> ShmActors {
     ShmActors::new(ShmActorsConfig {
         run_id: new_run_id(),
         binary: actor_bin(),
-        env: ENV.into(),
-        n_modes: K,
-        latent: latent(),
+        env: env.into(),
+        n_modes: k,
+        latent: latent_k(k),
         seeds: seeds.to_vec(),
         max_steps,
-        heartbeat_timeout: Duration::from_secs(3),
+        heartbeat_timeout,
         startup_timeout: Duration::from_secs(30),
         plain_env: false,
         task_mode: None,
     })
     .expect("starting actor processes")
+}
+
+/// A cheap reference (one expert episode per mode) for comparing evaluations.
+fn reference(env: &str, k: usize) -> Reference {
+    let mut e = ess_envs::make_env(env, k).unwrap();
+    build_reference(e.as_mut(), 1, 7).unwrap()
+}
+
+/// Evaluates `w` in this process and through `procs`' actors: same confusion matrix,
+/// returns and episodes (every field).
+fn assert_same_evaluation(
+    env: &str,
+    k: usize,
+    reference: &Reference,
+    procs: &mut ShmActors,
+    w: &PolicyWeights,
+    episodes: usize,
+) {
+    let mut local_env = ess_envs::make_env(env, k).unwrap();
+    let (a, ea) = evaluate(
+        reference,
+        &mut LocalEval(local_env.as_mut()),
+        w,
+        &latent_k(k),
+        episodes,
+        0xE7A1,
+    )
+    .unwrap();
+    let runner = procs.evaluator().expect("actor processes run evaluations");
+    let (b, eb) = evaluate(reference, runner, w, &latent_k(k), episodes, 0xE7A1).unwrap();
+    assert_eq!(ea.len(), k * episodes);
+    assert!(ea.iter().all(|e| !e.is_empty()));
+    assert_eq!(ea, eb, "{env}: episodes differ");
+    assert_eq!(a.confusion, b.confusion, "{env}: confusion");
+    assert_eq!(a.assignment, b.assignment, "{env}: assignment");
+    for (x, y) in [
+        (a.nmi, b.nmi),
+        (a.ent, b.ent),
+        (a.normalized_reward, b.normalized_reward),
+        (a.label_accuracy, b.label_accuracy),
+    ] {
+        assert_eq!(x.to_bits(), y.to_bits(), "{env}");
+    }
+    assert_eq!(a.normalized_reward_per_code, b.normalized_reward_per_code);
+}
+
+#[test]
+fn evaluation_in_actor_processes_equals_the_in_process_one() {
+    for (env, k, n_actors) in [(ENV, K, 2usize), ("reacher", 6, 3)] {
+        let reference = reference(env, k);
+        let spec = ess_envs::make_env(env, k).unwrap().spec().clone();
+        let seeds: Vec<u64> = (0..n_actors as u64).map(|i| 21 + i).collect();
+        let mut procs = shm_actors_on(env, k, &seeds, 200, Duration::from_secs(3));
+        let pids = procs.pids();
+        // A rollout, then an evaluation whose weights carry the same caller version with
+        // other parameters (as in training: evaluated after the update), then the next
+        // rollout: the actors must act with the right weights each time.
+        procs
+            .collect(weights_for(spec.obs_dim, spec.act_dim, k, 1, 0.0), 200)
+            .unwrap();
+        let w = weights_for(spec.obs_dim, spec.act_dim, k, 1, 0.5);
+        assert_same_evaluation(env, k, &reference, &mut procs, &w, 2);
+        let chunks = procs
+            .collect(weights_for(spec.obs_dim, spec.act_dim, k, 2, 0.0), 200)
+            .unwrap();
+        assert!(chunks.iter().all(|c| c.policy_version == 2));
+        drop(procs);
+        assert_eq!(wait_gone(&pids, 5.0), Vec::<u32>::new(), "left behind");
+    }
+}
+
+#[test]
+fn a_dead_or_hung_actor_during_evaluation_is_replaced_and_its_job_run_again() {
+    let reference = reference(ENV, K);
+    let mut procs = shm_actors_on(ENV, K, &[31, 32], 100, Duration::from_secs(1));
+    procs.collect(weights(1), 100).unwrap();
+    let pids = procs.pids();
+    let signal = |sig: &str, pid: u32| {
+        let st = Command::new("kill")
+            .args([sig, &pid.to_string()])
+            .status()
+            .unwrap();
+        assert!(st.success());
+    };
+    signal("-KILL", pids[0]);
+    signal("-STOP", pids[1]);
+    assert_same_evaluation(ENV, K, &reference, &mut procs, &weights(2), 3);
+    let fresh = procs.pids();
+    assert!(
+        fresh[0] != pids[0] && fresh[1] != pids[1],
+        "{pids:?} -> {fresh:?}"
+    );
+    assert!(procs.collect(weights(3), 100).is_ok());
+    drop(procs);
+    let all: Vec<u32> = pids.iter().chain(&fresh).copied().collect();
+    assert_eq!(wait_gone(&all, 5.0), Vec::<u32>::new(), "left behind");
 }
 
 #[test]
