@@ -390,6 +390,17 @@ impl ShmActors {
         Ok(())
     }
 
+    /// Waits up to half a heartbeat period for an actor's event, then takes in every
+    /// status (heartbeats, exits) that arrived; returns the time it did so.
+    fn wait_and_drain_status(&mut self) -> Result<Instant, ActorError> {
+        self.wake_me
+            .timed_wait(|_| {}, HEARTBEAT_PERIOD / 2)
+            .map_err(|e| transport(format!("waiting for actors: {e:?}")))?;
+        let now = Instant::now();
+        self.drain_status(now)?;
+        Ok(now)
+    }
+
     /// Takes every heartbeat that arrived: who is alive, who is idle.
     fn drain_status(&mut self, now: Instant) -> Result<(), ActorError> {
         while let Some(s) = self
@@ -546,11 +557,7 @@ impl RolloutSource for ShmActors {
         }
         let mut restarts_now = vec![0u32; n];
         while out.iter().any(Option::is_none) {
-            self.wake_me
-                .timed_wait(|_| {}, HEARTBEAT_PERIOD / 2)
-                .map_err(|e| transport(format!("waiting for actors: {e:?}")))?;
-            let now = Instant::now();
-            self.drain_status(now)?;
+            let now = self.wait_and_drain_status()?;
             // Chunks.
             while let Some(sample) = self
                 .chunks
@@ -645,11 +652,7 @@ impl EvalRunner for ShmActors {
             if held.iter().all(Option::is_none) {
                 break;
             }
-            self.wake_me
-                .timed_wait(|_| {}, HEARTBEAT_PERIOD / 2)
-                .map_err(|e| transport(format!("waiting for actors: {e:?}")))?;
-            let now = Instant::now();
-            self.drain_status(now)?;
+            let now = self.wait_and_drain_status()?;
             while let Some(sample) = self
                 .chunks
                 .receive()

@@ -203,13 +203,7 @@ fn checked_header<H: bytemuck::Pod>(
 ) -> Result<H, ShmError> {
     let bytes = std::mem::size_of::<H>();
     check_aligned(buf, what)?;
-    if buf.len() < bytes {
-        return Err(ShmError::TooShort {
-            what,
-            needed: bytes,
-            got: buf.len(),
-        });
-    }
+    check_len(buf, what, bytes)?;
     let h: H =
         *bytemuck::try_from_bytes(&buf[..bytes]).map_err(|_| ShmError::Misaligned { what })?;
     let (magic, version) = magic_version(&h);
@@ -222,6 +216,18 @@ fn checked_header<H: bytemuck::Pod>(
         });
     }
     Ok(h)
+}
+
+/// `buf` holds at least `needed` bytes of a `what`.
+fn check_len(buf: &[u8], what: &'static str, needed: usize) -> Result<(), ShmError> {
+    if buf.len() < needed {
+        return Err(ShmError::TooShort {
+            what,
+            needed,
+            got: buf.len(),
+        });
+    }
+    Ok(())
 }
 
 fn check_aligned(buf: &[u8], what: &'static str) -> Result<(), ShmError> {
@@ -258,13 +264,7 @@ impl<'a> ShmChunkWriter<'a> {
     pub fn new(buf: &'a mut [u8], mut header: ShmChunkHeader) -> Result<Self, ShmError> {
         check_aligned(buf, "chunk")?;
         let layout = layout_of(&header)?;
-        if buf.len() < layout.bytes() {
-            return Err(ShmError::TooShort {
-                what: "chunk",
-                needed: layout.bytes(),
-                got: buf.len(),
-            });
-        }
+        check_len(buf, "chunk", layout.bytes())?;
         header.magic = CHUNK_MAGIC;
         header.layout_version = LAYOUT_VERSION;
         let (hb, mut rest) = buf.split_at_mut(HEADER_BYTES);
@@ -455,13 +455,7 @@ pub fn read_chunk_header(buf: &[u8]) -> Result<ShmChunkHeader, ShmError> {
         (h.magic, h.layout_version)
     })?;
     let needed = layout_of(&h)?.bytes();
-    if buf.len() < needed {
-        return Err(ShmError::TooShort {
-            what: "chunk",
-            needed,
-            got: buf.len(),
-        });
-    }
+    check_len(buf, "chunk", needed)?;
     Ok(h)
 }
 
@@ -599,13 +593,7 @@ fn prior_code(p: LatentPrior) -> u32 {
 /// Writes `w` into `buf` (8-byte aligned, at least [`WeightsMsg::bytes`] long).
 pub fn write_weights(buf: &mut [u8], w: &WeightsMsg) -> Result<(), ShmError> {
     check_aligned(buf, "weights")?;
-    if buf.len() < w.bytes() {
-        return Err(ShmError::TooShort {
-            what: "weights",
-            needed: w.bytes(),
-            got: buf.len(),
-        });
-    }
+    check_len(buf, "weights", w.bytes())?;
     if w.sizes.len() > MAX_LAYER_SIZES || w.sizes.len() < 2 {
         return Err(ShmError::BadField {
             what: "weights",
@@ -709,13 +697,7 @@ pub fn read_weights(buf: &[u8]) -> Result<WeightsMsg, ShmError> {
     let n_params: usize = sizes.windows(2).map(|w| w[0] * w[1] + w[1]).sum();
     let (od, ad, k) = (h.obs_dim as usize, h.act_dim as usize, h.n_codes as usize);
     let needed = (WHEADER_BYTES + 4 * (n_params + ad + k + 2 * od)).div_ceil(8) * 8;
-    if buf.len() < needed {
-        return Err(ShmError::TooShort {
-            what: "weights",
-            needed,
-            got: buf.len(),
-        });
-    }
+    check_len(buf, "weights", needed)?;
     let mut rest = &buf[WHEADER_BYTES..];
     let mut take = |n| {
         split_f32(&mut rest, n)
@@ -859,13 +841,7 @@ pub fn write_episode(
 ) -> Result<(), ShmError> {
     check_aligned(buf, "episode")?;
     let l = ShmEpisodeLayout::of(&header)?;
-    if buf.len() < l.bytes() {
-        return Err(ShmError::TooShort {
-            what: "episode",
-            needed: l.bytes(),
-            got: buf.len(),
-        });
-    }
+    check_len(buf, "episode", l.bytes())?;
     let n = l.len;
     for (field, got, want) in [
         ("obs", e.obs.len(), n * l.obs_dim),
@@ -901,13 +877,7 @@ pub fn read_episode(buf: &[u8]) -> Result<(ShmEpisodeHeader, EpisodeArrays), Shm
             (h.magic, h.layout_version)
         })?;
     let l = ShmEpisodeLayout::of(&h)?;
-    if buf.len() < l.bytes() {
-        return Err(ShmError::TooShort {
-            what: "episode",
-            needed: l.bytes(),
-            got: buf.len(),
-        });
-    }
+    check_len(buf, "episode", l.bytes())?;
     let n = l.len;
     let mut rest = &buf[EHEADER_BYTES..];
     let mut take = |m| {
