@@ -30,7 +30,7 @@ use rand_chacha::ChaCha8Rng;
 use tch::{Tensor, nn};
 
 use crate::nets::{export_policy, tensor_2d, tensor_to_vec};
-use crate::ppo::{PpoBatch, PpoLearner, RewardScaler, chunks_gae, column};
+use crate::ppo::{PpoBatch, PpoLearner, RewardScaler, column, rollout_gae};
 
 /// What to train.
 #[derive(Debug, Clone)]
@@ -320,18 +320,13 @@ pub fn train_expert(
                 tensor_to_vec(&ppo.values(&nin)),
             )
         });
-        let rewards = if cfg.ppo.normalize_rewards {
-            scaler.scale_chunks(&chunks, &all.env_reward, cfg.ppo.gamma)
-        } else {
-            all.env_reward.clone()
-        };
-        let (adv, ret) = chunks_gae(
+        let (adv, ret) = rollout_gae(
+            &cfg.ppo,
+            &mut scaler,
             &chunks,
-            &rewards,
+            &all.env_reward,
             &values,
             &next_values,
-            cfg.ppo.gamma,
-            cfg.ppo.gae_lambda,
         );
         let batch = PpoBatch {
             obs: obs_n,

@@ -107,6 +107,34 @@ impl RewardScaler {
     }
 }
 
+/// Advantages and returns of one rollout as both trainers compute them: `rewards`
+/// scaled by `scaler` when `cfg.normalize_rewards`, then [`chunks_gae`] with
+/// `cfg.gamma` and `cfg.gae_lambda`.
+pub fn rollout_gae(
+    cfg: &ess_proto::config::PpoConfig,
+    scaler: &mut RewardScaler,
+    chunks: &[Chunk],
+    rewards: &[f32],
+    values: &[f32],
+    next_values: &[f32],
+) -> (Vec<f32>, Vec<f32>) {
+    let scaled;
+    let rewards = if cfg.normalize_rewards {
+        scaled = scaler.scale_chunks(chunks, rewards, cfg.gamma);
+        &scaled[..]
+    } else {
+        rewards
+    };
+    chunks_gae(
+        chunks,
+        rewards,
+        values,
+        next_values,
+        cfg.gamma,
+        cfg.gae_lambda,
+    )
+}
+
 /// [`gae`] over each chunk's steps of the concatenated `rewards` / `values` /
 /// `next_values` (a chunk's last step is cut: it bootstraps). Returns the
 /// concatenated `(advantages, returns)`.

@@ -18,7 +18,7 @@ use crate::objective::{
     reward::{RewardWeights, disc_term, policy_reward},
     rim::rim,
 };
-use crate::ppo::{PpoBatch, PpoLearner, PpoStats, chunks_gae, column};
+use crate::ppo::{PpoBatch, PpoLearner, PpoStats, column, rollout_gae};
 use anyhow::{Context, Result, bail};
 use ess_actor::{LatentSpec, LocalEval, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::{DemoSpec, Demos, generate_demos, make_env};
@@ -667,18 +667,13 @@ pub fn run(
             .collect();
         log.reward_mean =
             rewards.iter().map(|&r| r as f64).sum::<f64>() / rewards.len().max(1) as f64;
-        let rewards = if cfg.ppo.normalize_rewards {
-            scaler.scale_chunks(&chunks, &rewards, cfg.ppo.gamma)
-        } else {
-            rewards
-        };
-        let (adv, ret) = chunks_gae(
+        let (adv, ret) = rollout_gae(
+            &cfg.ppo,
+            &mut scaler,
             &chunks,
             &rewards,
             &values,
             &next_values,
-            cfg.ppo.gamma,
-            cfg.ppo.gae_lambda,
         );
         let batch = PpoBatch {
             obs: obs_n,
