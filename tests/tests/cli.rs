@@ -201,6 +201,10 @@ fn env_defaults_apply_under_the_preset_and_set_overrides_them() {
     assert!(gail.contains("reward_qc = 0.0"), "{gail}");
     // Reacher's [per_method.ess-infogail] table reaches that method only.
     assert!(reacher.contains("disc_code_reweight = true"), "{reacher}");
+    assert!(
+        reacher.contains("info_reward_warmup_iters = 120"),
+        "{reacher}"
+    );
     assert!(gail.contains("disc_code_reweight = false"), "{gail}");
     let humanoid = out(&["train", "--env", "humanoid", "--print-config"]);
     assert!(humanoid.contains("n_modes = 3") && humanoid.contains("label_ratio = 0.02"));
