@@ -452,11 +452,9 @@ impl Env for Humanoid {
 mod tests {
     use super::*;
     use crate::env::conformance::{
-        assert_bad_params, assert_malformed_mjcf, assert_wrong_shape_mjcf, check_env,
-        random_rollout,
+        assert_bad_params, assert_malformed_mjcf, assert_random_controls_raise_no_warning,
+        assert_wrong_shape_mjcf, check_env, random_rollout,
     };
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
 
     fn env() -> Humanoid {
         Humanoid::new(HumanoidConfig::default()).expect("humanoid")
@@ -759,25 +757,7 @@ mod tests {
 
     #[test]
     fn random_controls_over_several_seeds_raise_no_mujoco_warning() {
-        let mut env = env();
-        let mut obs = vec![0.0; 348];
-        for ep in 0..12 {
-            let mut rng = ChaCha8Rng::seed_from_u64(ep);
-            env.reset(ep, &mut obs).expect("reset");
-            loop {
-                let a: [f32; 17] = if ep % 2 == 0 {
-                    std::array::from_fn(|_| rng.random_range(-1.0..=1.0))
-                } else {
-                    std::array::from_fn(|_| if rng.random::<bool>() { 1.0 } else { -1.0 })
-                };
-                let out = env.step(&a, &mut obs).expect("step raises no warning");
-                assert!(obs.iter().all(|x| x.is_finite()));
-                if out.done() {
-                    break;
-                }
-            }
-            assert!(env.warning_counts().iter().all(|&n| n == 0));
-        }
+        assert_random_controls_raise_no_warning(&mut env(), 12, Humanoid::warning_counts);
     }
 
     #[test]

@@ -206,3 +206,37 @@ pub(crate) fn assert_wrong_shape_mjcf<T>(
         assert!(err.to_string().contains(want), "{want}: {err}");
     }
 }
+
+/// Runs `episodes` episodes of random controls (uniform on even seeds, bang-bang
+/// +-1 on odd ones) to their end: every observation stays finite and `warnings(env)`
+/// (the env's MuJoCo warning counters) stays all zero.
+pub(crate) fn assert_random_controls_raise_no_warning<E: Env>(
+    env: &mut E,
+    episodes: u64,
+    warnings: impl Fn(&E) -> Vec<i32>,
+) {
+    let (obs_dim, act_dim) = (env.spec().obs_dim, env.spec().act_dim);
+    let mut obs = vec![0.0; obs_dim];
+    let mut a = vec![0.0f32; act_dim];
+    for ep in 0..episodes {
+        let mut rng = ChaCha8Rng::seed_from_u64(ep);
+        env.reset(ep, &mut obs).expect("reset");
+        loop {
+            for x in a.iter_mut() {
+                *x = if ep % 2 == 0 {
+                    rng.random_range(-1.0..=1.0)
+                } else if rng.random::<bool>() {
+                    1.0
+                } else {
+                    -1.0
+                };
+            }
+            let out = env.step(&a, &mut obs).expect("step raises no warning");
+            assert!(obs.iter().all(|x| x.is_finite()));
+            if out.done() {
+                break;
+            }
+        }
+        assert!(warnings(env).iter().all(|&n| n == 0), "episode {ep}");
+    }
+}
