@@ -21,3 +21,15 @@ pub use chunk::{Chunk, Step, StepSink};
 pub use config::{CheckedConfig, ConfigError, TrainConfig};
 pub use mlp::Mlp;
 pub use weights::{MlpLayout, WeightsError};
+
+/// Messages of `proto/ess/v1/*.proto` (package `ess.v1`): the control plane's
+/// `JobService` (its stubs with the `grpc` feature) and the MCAP run-log records.
+#[allow(missing_docs, clippy::all, clippy::pedantic)]
+pub mod pb {
+    include!(concat!(env!("OUT_DIR"), "/ess.v1.rs"));
+}
+
+/// The encoded `FileDescriptorSet` of every `.proto` in this crate: served by gRPC
+/// reflection and embedded as the schema of protobuf channels in MCAP files.
+pub const FILE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/ess_descriptor.bin"));

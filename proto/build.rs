@@ -1,0 +1,31 @@
+//! Compiles `proto/ess/v1/*.proto` with the pure-Rust `protox` (no `protoc` needed):
+//! prost messages always; tonic client and server stubs with the `grpc` feature. The
+//! encoded `FileDescriptorSet` is kept for gRPC reflection and for the protobuf
+//! schemas embedded in MCAP run logs.
+
+use std::path::PathBuf;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let root = PathBuf::from("proto");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(root.join("ess/v1"))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "proto"))
+        .collect();
+    files.sort();
+    println!("cargo:rerun-if-changed=proto");
+    for f in &files {
+        println!("cargo:rerun-if-changed={}", f.display());
+    }
+    let fds = protox::compile(&files, [&root])?;
+    let out = PathBuf::from(std::env::var("OUT_DIR")?);
+    std::fs::write(
+        out.join("ess_descriptor.bin"),
+        prost::Message::encode_to_vec(&fds),
+    )?;
+    let grpc = std::env::var_os("CARGO_FEATURE_GRPC").is_some();
+    tonic_prost_build::configure()
+        .build_server(grpc)
+        .build_client(grpc)
+        .compile_fds(fds)?;
+    Ok(())
+}
