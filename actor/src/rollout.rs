@@ -230,6 +230,16 @@ pub struct EvalEpisode {
     pub code: usize,
     /// The eps the policy was given.
     pub eps: f32,
+    /// Seed of the env's `reset`.
+    pub reset_seed: u64,
+    /// Observation after `reset`.
+    pub start_obs: Vec<f32>,
+    /// The env's complete state after `reset` ([`Env::state`]).
+    pub start_state: Vec<f64>,
+    /// `[T][state_dim]` the env's state after each step.
+    pub states: Vec<f64>,
+    /// Length of one state vector.
+    pub state_dim: usize,
     /// `[T][obs_dim]` observations before each step.
     pub obs: Vec<f32>,
     /// `[T][act_dim]` actions.
@@ -291,10 +301,12 @@ pub fn eval_episode(
     let mut ep = EvalEpisode {
         code,
         eps,
+        reset_seed: seed,
         n_modes: s.n_modes,
         ..Default::default()
     };
     env.reset(seed, &mut obs)?;
+    ep.start_obs = obs.clone();
     for _ in 0..s.max_steps {
         actor.act_deterministic(w, &obs, eps, &c, &mut act);
         let out = env.step(&act, &mut next)?;

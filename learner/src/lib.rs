@@ -10,6 +10,7 @@
 //!   task reward).
 //! - [`presets`]: the method presets, embedded in the binary.
 //! - [`plot`], [`report`]: PNG figures.
+//! - [`runlog`]: the MCAP run log `run.mcap` (writer, truncation-tolerant reader).
 
 pub mod actors;
 pub mod classifier;
@@ -22,5 +23,6 @@ pub mod plot;
 pub mod ppo;
 pub mod presets;
 pub mod report;
+pub mod runlog;
 pub mod table;
 pub mod train;

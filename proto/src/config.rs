@@ -382,6 +382,15 @@ pub struct RunConfig {
     pub reference_episodes: usize,
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: usize,
+    /// Log a sample of the rollout chunks into the run log (`run.mcap`, topic
+    /// `/train/chunk`) every this many iterations (0: none).
+    pub log_chunks_every: usize,
+    /// Steps logged from each actor's chunk on such an iteration (the chunk's first
+    /// ones); 1..=100000.
+    pub log_chunk_steps: usize,
+    /// Log the periodic evaluations' episodes (per step) into the run log too; the
+    /// final evaluation's episodes are always logged.
+    pub log_periodic_evals: bool,
 }
 
 impl Default for RunConfig {
@@ -399,6 +408,9 @@ impl Default for RunConfig {
             eval_episodes_periodic: 10,
             reference_episodes: 20,
             checkpoint_every: 100,
+            log_chunks_every: 25,
+            log_chunk_steps: 200,
+            log_periodic_evals: false,
         }
     }
 }
@@ -845,6 +857,12 @@ impl TrainConfig {
             r.eval_episodes_periodic,
             "must be >= 1",
         )?;
+        range(
+            (1..=100_000).contains(&r.log_chunk_steps),
+            "run.log_chunk_steps",
+            r.log_chunk_steps,
+            "must be in 1..=100000",
+        )?;
         Ok(CheckedConfig(self))
     }
 }
@@ -917,6 +935,7 @@ mod tests {
             ("demos.imbalance_ratio=0.5", "demos.imbalance_ratio"),
             ("env.n_modes=1", "env.n_modes"),
             ("ppo.clip=0", "ppo.clip"),
+            ("run.log_chunk_steps=0", "run.log_chunk_steps"),
         ] {
             let e = ConfigBuilder::new()
                 .set(arg)

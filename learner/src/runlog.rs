@@ -1,0 +1,754 @@
+//! The MCAP run log `<out>/run.mcap` of a training run, and its reader.
+//!
+//! `ess train` writes one [`RunLog`] per run. Every channel carries protobuf messages of
+//! package `ess.v1` (`proto/proto/ess/v1/runlog.proto` and `metrics.proto`): schema
+//! encoding `protobuf` with the encoded `FileDescriptorSet`
+//! ([`ess_proto::FILE_DESCRIPTOR_SET`]) as schema data, message encoding `protobuf`, so
+//! Foxglove and the `mcap` CLI decode and plot them.
+//!
+//! | topic | message | when |
+//! |---|---|---|
+//! | `/config` | `ess.v1.RunConfig` | first: the resolved config as TOML, method, env, seed |
+//! | `/metrics` | `ess.v1.IterationMetrics` | after every iteration; the final evaluation repeats the last iteration (iteration 0 if none ran) with its `nmi`, `ent`, `normalized_reward` |
+//! | `/eval/episode` | `ess.v1.EvalEpisode` | one per evaluation episode (final evaluation; periodic ones with `run.log_periodic_evals`): code, eps, reset seed, start state, length, returns |
+//! | `/eval/step` | `ess.v1.EvalStep` | each step of that episode: obs, action, c, eps, mode rewards, next obs, the env state after the step |
+//! | `/train/chunk` | `ess.v1.TrainingChunk` | every `run.log_chunks_every` iterations, the first `run.log_chunk_steps` steps of each actor's chunk with the policy reward |
+//!
+//! Log times are wall-clock nanoseconds since the Unix epoch, never decreasing.
+//!
+//! Files are zstd-chunked with message indexes, chunk indexes, statistics and a summary
+//! section written by [`RunLog::finish`] (also run on drop, so error paths and Ctrl-C /
+//! SIGTERM, which end `train::run` normally, close the file). The writer closes its
+//! current chunk after every iteration ([`RunLog::iteration`]) and evaluation, so a
+//! process killed with SIGKILL loses at most the iteration in progress: [`read`] streams
+//! the records of a possibly truncated file and returns every complete message before
+//! the cut ([`RunLogContents::truncated`] says why it stopped).
+//!
+//! Resume: [`RunLog::reopen`] rewrites an existing (possibly truncated) log keeping the
+//! messages of iterations up to the checkpoint's, drops the interrupted run's final
+//! evaluation, and continues writing, so a resumed run's log reads like an
+//! uninterrupted one.
+
+use crate::train::IterationLog;
+use ess_actor::EvalEpisode;
+use ess_proto::config::LatentPrior;
+use ess_proto::{CheckedConfig, Chunk, FILE_DESCRIPTOR_SET, pb};
+use prost::Message as _;
+use std::collections::{BTreeMap, HashSet};
+use std::fs::File;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+/// Topic of the resolved configuration ([`pb::RunConfig`]).
+pub const CONFIG_TOPIC: &str = "/config";
+/// Topic of the per-iteration metrics ([`pb::IterationMetrics`]).
+pub const METRICS_TOPIC: &str = "/metrics";
+/// Topic of the evaluation episodes' start records ([`pb::EvalEpisode`]).
+pub const EVAL_EPISODE_TOPIC: &str = "/eval/episode";
+/// Topic of the evaluation episodes' steps ([`pb::EvalStep`]).
+pub const EVAL_STEP_TOPIC: &str = "/eval/step";
+/// Topic of the sampled training chunks ([`pb::TrainingChunk`]).
+pub const TRAINING_CHUNK_TOPIC: &str = "/train/chunk";
+
+/// Each topic with the full name of its protobuf message, in channel order.
+pub const TOPICS: [(&str, &str); 5] = [
+    (CONFIG_TOPIC, "ess.v1.RunConfig"),
+    (METRICS_TOPIC, "ess.v1.IterationMetrics"),
+    (EVAL_EPISODE_TOPIC, "ess.v1.EvalEpisode"),
+    (EVAL_STEP_TOPIC, "ess.v1.EvalStep"),
+    (TRAINING_CHUNK_TOPIC, "ess.v1.TrainingChunk"),
+];
+
+const PROTOBUF: &str = "protobuf";
+
+/// One message of the run log.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Record {
+    /// `/config`.
+    Config(pb::RunConfig),
+    /// `/metrics`.
+    Metrics(pb::IterationMetrics),
+    /// `/eval/episode`.
+    EvalEpisode(pb::EvalEpisode),
+    /// `/eval/step`.
+    EvalStep(pb::EvalStep),
+    /// `/train/chunk`.
+    TrainingChunk(pb::TrainingChunk),
+}
+
+impl Record {
+    /// Index into [`TOPICS`].
+    fn kind(&self) -> usize {
+        match self {
+            Record::Config(_) => 0,
+            Record::Metrics(_) => 1,
+            Record::EvalEpisode(_) => 2,
+            Record::EvalStep(_) => 3,
+            Record::TrainingChunk(_) => 4,
+        }
+    }
+
+    /// The topic the record is written on.
+    pub fn topic(&self) -> &'static str {
+        TOPICS[self.kind()].0
+    }
+
+    fn encode(&self) -> Vec<u8> {
+        match self {
+            Record::Config(m) => m.encode_to_vec(),
+            Record::Metrics(m) => m.encode_to_vec(),
+            Record::EvalEpisode(m) => m.encode_to_vec(),
+            Record::EvalStep(m) => m.encode_to_vec(),
+            Record::TrainingChunk(m) => m.encode_to_vec(),
+        }
+    }
+
+    fn decode(kind: usize, data: &[u8]) -> Result<Self, prost::DecodeError> {
+        Ok(match kind {
+            0 => Record::Config(pb::RunConfig::decode(data)?),
+            1 => Record::Metrics(pb::IterationMetrics::decode(data)?),
+            2 => Record::EvalEpisode(pb::EvalEpisode::decode(data)?),
+            3 => Record::EvalStep(pb::EvalStep::decode(data)?),
+            _ => Record::TrainingChunk(pb::TrainingChunk::decode(data)?),
+        })
+    }
+}
+
+/// Errors of writing and reading run logs; each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum RunLogError {
+    /// The file could not be created, opened, read, written or renamed.
+    #[error("{}: {what}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What was being done.
+        what: &'static str,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The MCAP writer refused a record.
+    #[error("{}: writing MCAP: {source}", path.display())]
+    Mcap {
+        /// The file.
+        path: PathBuf,
+        /// The writer's error.
+        #[source]
+        source: mcap::McapError,
+    },
+    /// The file does not start with the MCAP magic.
+    #[error("{} is not an MCAP file (it does not start with the MCAP magic bytes)", path.display())]
+    NotMcap {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A known topic with another schema or encoding than the run log's.
+    #[error(
+        "{}: topic {topic} has schema `{found}` (schema encoding `{schema_encoding}`, message encoding `{message_encoding}`), expected `{expected}` with protobuf encodings: not an Ess run log of this version",
+        path.display()
+    )]
+    WrongSchema {
+        /// The file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// The schema name found.
+        found: String,
+        /// Its schema encoding.
+        schema_encoding: String,
+        /// The channel's message encoding.
+        message_encoding: String,
+        /// The schema name expected.
+        expected: &'static str,
+    },
+    /// A complete message that does not decode as its schema.
+    #[error("{}: message {index} (on {topic}) does not decode as {schema}: {source}", path.display())]
+    Decode {
+        /// The file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// Index of the message in the file.
+        index: usize,
+        /// The expected message.
+        schema: &'static str,
+        /// prost's error.
+        #[source]
+        source: prost::DecodeError,
+    },
+}
+
+/// What the run log records, taken from the config once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LogOptions {
+    /// `run.log_chunks_every` (0: no chunks).
+    pub chunks_every: usize,
+    /// `run.log_chunk_steps`.
+    pub chunk_steps: usize,
+    /// `run.log_periodic_evals`.
+    pub periodic_evals: bool,
+    /// Latent codes K (width of `EvalStep.c`).
+    pub n_codes: usize,
+    /// Whether the policy gets a one-hot `c` in evaluation (not for `prior = "none"`).
+    pub one_hot: bool,
+}
+
+impl LogOptions {
+    /// The options `cfg` asks for.
+    pub fn of(cfg: &CheckedConfig) -> Self {
+        Self {
+            chunks_every: cfg.run.log_chunks_every,
+            chunk_steps: cfg.run.log_chunk_steps,
+            periodic_evals: cfg.run.log_periodic_evals,
+            n_codes: cfg.env.n_modes,
+            one_hot: cfg.method.prior != LatentPrior::None,
+        }
+    }
+}
+
+/// The `/config` record of `cfg`.
+pub fn config_record(cfg: &CheckedConfig) -> pb::RunConfig {
+    pb::RunConfig {
+        toml: cfg.to_toml(),
+        method: cfg.method.name.clone(),
+        env: cfg.env.name.clone(),
+        n_modes: cfg.env.n_modes as u32,
+        seed: cfg.run.seed,
+    }
+}
+
+/// The one mapping of a metrics row into its protobuf message (`/metrics`).
+impl From<&IterationLog> for pb::IterationMetrics {
+    fn from(l: &IterationLog) -> Self {
+        Self {
+            iteration: l.iteration as u32,
+            env_steps: l.env_steps as u64,
+            wall_s: l.wall_s,
+            rollout_s: l.rollout_s,
+            disc_s: l.disc_s,
+            ppo_s: l.ppo_s,
+            disc_bce: l.disc_bce,
+            d_acc_expert: l.d_acc_expert,
+            d_acc_policy: l.d_acc_policy,
+            qc_labeled: l.qc_labeled,
+            qc_generated: l.qc_generated,
+            qeps: l.qeps,
+            rim_entropy: l.rim_entropy,
+            rim_kl: l.rim_kl,
+            contrastive: l.contrastive,
+            reward_mean: l.reward_mean,
+            policy_loss: l.policy_loss,
+            value_loss: l.value_loss,
+            entropy: l.entropy,
+            approx_kl: l.approx_kl,
+            prior: l
+                .prior
+                .split(';')
+                .filter_map(|p| p.trim().parse::<f32>().ok())
+                .collect(),
+            nmi: l.nmi,
+            ent: l.ent,
+            normalized_reward: l.normalized_reward,
+        }
+    }
+}
+
+type McapWriter = mcap::Writer<BufWriter<File>>;
+
+/// The writer of a run log (see the module docs for topics and guarantees).
+pub struct RunLog {
+    path: PathBuf,
+    writer: Option<McapWriter>,
+    /// Channel id of each entry of [`TOPICS`].
+    channels: [u16; 5],
+    sequence: u32,
+    last_time: u64,
+    next_episode: u32,
+    options: LogOptions,
+}
+
+impl std::fmt::Debug for RunLog {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunLog")
+            .field("path", &self.path)
+            .field("open", &self.writer.is_some())
+            .field("options", &self.options)
+            .finish()
+    }
+}
+
+impl RunLog {
+    /// Creates (truncating) the log at `path` and writes `cfg` on `/config`.
+    pub fn create(path: &Path, cfg: &CheckedConfig) -> Result<Self, RunLogError> {
+        let mut log = Self::open_writer(path, LogOptions::of(cfg))?;
+        log.record(&Record::Config(config_record(cfg)))?;
+        log.flush()?;
+        Ok(log)
+    }
+
+    /// A log at `path` with every channel registered and nothing written yet.
+    pub fn open_writer(path: &Path, options: LogOptions) -> Result<Self, RunLogError> {
+        let file = File::create(path).map_err(|source| RunLogError::Io {
+            path: path.to_path_buf(),
+            what: "creating the run log",
+            source,
+        })?;
+        let mcap_err = |source| RunLogError::Mcap {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .use_chunks(true)
+            .emit_summary_records(true)
+            .emit_message_indexes(true)
+            .emit_chunk_indexes(true)
+            .emit_statistics(true)
+            // Single-threaded compression: the learner's cores are busy training.
+            .compression_threads(0)
+            .profile("")
+            .create(BufWriter::new(file))
+            .map_err(mcap_err)?;
+        let mut channels = [0u16; 5];
+        for (ch, (topic, schema)) in channels.iter_mut().zip(TOPICS) {
+            let schema_id = writer
+                .add_schema(schema, PROTOBUF, FILE_DESCRIPTOR_SET)
+                .map_err(mcap_err)?;
+            *ch = writer
+                .add_channel(schema_id, topic, PROTOBUF, &BTreeMap::new())
+                .map_err(mcap_err)?;
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            writer: Some(writer),
+            channels,
+            sequence: 0,
+            last_time: 0,
+            next_episode: 0,
+            options,
+        })
+    }
+
+    /// Rewrites the log at `path` for a run resumed from the checkpoint of iteration
+    /// `upto_iteration` and returns it open for writing.
+    ///
+    /// Kept: every complete message of the existing file (which may be truncated) that
+    /// belongs to iterations `<= upto_iteration` with its original log time: `/config`,
+    /// `/metrics` (the first message of each iteration `1..=upto_iteration`),
+    /// `/train/chunk`, and the periodic evaluations' episodes and steps. Dropped: later
+    /// iterations and the interrupted run's final evaluation (episodes marked
+    /// `final_eval`, the `/metrics` message repeating an iteration, iteration 0). A
+    /// `/config` record of `cfg` is appended when its TOML differs from the last kept
+    /// one (or none was kept). A missing file starts a new log. The rewrite goes to
+    /// `<path>.reopen` first and replaces `path` by a rename.
+    pub fn reopen(
+        path: &Path,
+        cfg: &CheckedConfig,
+        upto_iteration: usize,
+    ) -> Result<Self, RunLogError> {
+        if !path.exists() {
+            tracing::warn!(path = %path.display(), "no run log to reopen; starting a new one");
+            return Self::create(path, cfg);
+        }
+        let old = read(path)?;
+        if let Some(why) = &old.truncated {
+            tracing::warn!(path = %path.display(), why, "reopening a truncated run log");
+        }
+        let tmp = path.with_extension("mcap.reopen");
+        let mut log = Self::open_writer(&tmp, LogOptions::of(cfg))?;
+        let upto = upto_iteration as u64;
+        let mut seen_iterations = HashSet::new();
+        let mut kept_episodes = HashSet::new();
+        let mut last_toml: Option<String> = None;
+        for entry in &old.records {
+            let keep = match &entry.record {
+                Record::Config(c) => {
+                    last_toml = Some(c.toml.clone());
+                    true
+                }
+                Record::Metrics(m) => {
+                    m.iteration >= 1
+                        && u64::from(m.iteration) <= upto
+                        && seen_iterations.insert(m.iteration)
+                }
+                Record::EvalEpisode(e) => {
+                    let keep = !e.final_eval && u64::from(e.iteration) <= upto;
+                    if keep {
+                        kept_episodes.insert(e.episode);
+                        log.next_episode = log.next_episode.max(e.episode + 1);
+                    }
+                    keep
+                }
+                Record::EvalStep(s) => kept_episodes.contains(&s.episode),
+                Record::TrainingChunk(c) => u64::from(c.iteration) <= upto,
+            };
+            if keep {
+                log.write_at(entry.log_time, &entry.record)?;
+            }
+        }
+        let cfg_record = config_record(cfg);
+        if last_toml.as_deref() != Some(cfg_record.toml.as_str()) {
+            log.record(&Record::Config(cfg_record))?;
+        }
+        log.flush()?;
+        std::fs::rename(&tmp, path).map_err(|source| RunLogError::Io {
+            path: path.to_path_buf(),
+            what: "replacing the run log with its rewrite",
+            source,
+        })?;
+        log.path = path.to_path_buf();
+        Ok(log)
+    }
+
+    /// The file written.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Writes `rec` stamped with the current time.
+    pub fn record(&mut self, rec: &Record) -> Result<(), RunLogError> {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(0);
+        self.write_at(now, rec)
+    }
+
+    /// Writes `rec` with log time `log_time` (ns since the Unix epoch; raised to the
+    /// last one written, so times never decrease).
+    pub fn write_at(&mut self, log_time: u64, rec: &Record) -> Result<(), RunLogError> {
+        let t = log_time.max(self.last_time);
+        self.last_time = t;
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id: self.channels[rec.kind()],
+            sequence: self.sequence,
+            log_time: t,
+            publish_time: t,
+        };
+        let data = rec.encode();
+        let path = &self.path;
+        let w = self.writer.as_mut().ok_or_else(|| RunLogError::Io {
+            path: path.clone(),
+            what: "writing after finish",
+            source: std::io::Error::other("the run log is closed"),
+        })?;
+        w.write_to_known_channel(&header, &data)
+            .map_err(|source| RunLogError::Mcap {
+                path: path.clone(),
+                source,
+            })
+    }
+
+    /// Closes the current chunk and hands it to the OS, so that a killed process keeps
+    /// everything written so far.
+    pub fn flush(&mut self) -> Result<(), RunLogError> {
+        if let Some(w) = self.writer.as_mut() {
+            w.flush().map_err(|source| RunLogError::Mcap {
+                path: self.path.clone(),
+                source,
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Logs one iteration's metrics on `/metrics` and flushes.
+    pub fn iteration(&mut self, log: &IterationLog) -> Result<(), RunLogError> {
+        self.record(&Record::Metrics(log.into()))?;
+        self.flush()
+    }
+
+    /// Logs evaluation episodes of the policy of `iteration` (`final_eval`: the final
+    /// evaluation, always logged; periodic ones only with `run.log_periodic_evals`) on
+    /// `/eval/episode` and `/eval/step`, and flushes.
+    pub fn eval_episodes(
+        &mut self,
+        iteration: usize,
+        final_eval: bool,
+        episodes: &[EvalEpisode],
+    ) -> Result<(), RunLogError> {
+        if !final_eval && !self.options.periodic_evals {
+            return Ok(());
+        }
+        for ep in episodes {
+            let id = self.next_episode;
+            self.next_episode += 1;
+            for rec in episode_records(id, iteration, final_eval, ep, &self.options) {
+                self.record(&rec)?;
+            }
+        }
+        self.flush()
+    }
+
+    /// Logs a sample of iteration `iteration`'s rollout `chunks` on `/train/chunk` when
+    /// `run.log_chunks_every` asks for this iteration: the first `run.log_chunk_steps`
+    /// steps of each chunk. `rewards` are the policy rewards of all chunks' steps in
+    /// order (left out of the records when its length does not match).
+    pub fn chunks(
+        &mut self,
+        iteration: usize,
+        chunks: &[Chunk],
+        rewards: &[f32],
+    ) -> Result<(), RunLogError> {
+        let every = self.options.chunks_every;
+        if every == 0 || !iteration.is_multiple_of(every) {
+            return Ok(());
+        }
+        let total: usize = chunks.iter().map(Chunk::len).sum();
+        let rewards = (rewards.len() == total).then_some(rewards);
+        let mut offset = 0;
+        for (actor, c) in chunks.iter().enumerate() {
+            let n = c.len().min(self.options.chunk_steps);
+            let rec = chunk_record(
+                iteration,
+                actor,
+                c,
+                n,
+                rewards.map(|r| &r[offset..offset + n]),
+            );
+            self.record(&Record::TrainingChunk(rec))?;
+            offset += c.len();
+        }
+        Ok(())
+    }
+
+    /// Writes the summary section and footer and closes the file.
+    pub fn finish(mut self) -> Result<(), RunLogError> {
+        self.close()
+    }
+
+    fn close(&mut self) -> Result<(), RunLogError> {
+        let Some(mut w) = self.writer.take() else {
+            return Ok(());
+        };
+        w.finish().map_err(|source| RunLogError::Mcap {
+            path: self.path.clone(),
+            source,
+        })?;
+        w.into_inner().flush().map_err(|source| RunLogError::Io {
+            path: self.path.clone(),
+            what: "writing the run log's summary",
+            source,
+        })
+    }
+}
+
+impl Drop for RunLog {
+    /// Finishes the file on every path out of `train::run`, errors included.
+    fn drop(&mut self) {
+        if let Err(e) = self.close() {
+            tracing::warn!("closing the run log: {e}");
+        }
+    }
+}
+
+/// The `/eval/episode` record of `ep` followed by its `/eval/step` records.
+pub fn episode_records(
+    id: u32,
+    iteration: usize,
+    final_eval: bool,
+    ep: &EvalEpisode,
+    options: &LogOptions,
+) -> Vec<Record> {
+    let t = ep.len();
+    let od = ep.obs.len().checked_div(t).unwrap_or(ep.start_obs.len());
+    let ad = ep.act.len().checked_div(t).unwrap_or(0);
+    let k = ep.n_modes.max(1);
+    let sd = ep.state_dim;
+    let mut c = vec![0.0f32; options.n_codes];
+    if options.one_hot
+        && let Some(x) = c.get_mut(ep.code)
+    {
+        *x = 1.0;
+    }
+    let mut out = Vec::with_capacity(t + 1);
+    out.push(Record::EvalEpisode(pb::EvalEpisode {
+        episode: id,
+        iteration: iteration as u32,
+        final_eval,
+        code: ep.code as u32,
+        eps: ep.eps,
+        reset_seed: ep.reset_seed,
+        start_state: ep.start_state.clone(),
+        start_obs: ep.start_obs.clone(),
+        length: t as u32,
+        mode_returns: (0..ep.n_modes)
+            .map(|m| f64::from(ep.mode_return(m)))
+            .collect(),
+        obs_dim: od as u32,
+        act_dim: ad as u32,
+    }));
+    let rows = |v: &[f32], w: usize, i: usize| v.get(i * w..(i + 1) * w).unwrap_or(&[]).to_vec();
+    for i in 0..t {
+        out.push(Record::EvalStep(pb::EvalStep {
+            episode: id,
+            step: i as u32,
+            obs: rows(&ep.obs, od, i),
+            action: rows(&ep.act, ad, i),
+            c: c.clone(),
+            eps: ep.eps,
+            mode_rewards: rows(&ep.mode_rewards, k, i),
+            next_obs: rows(&ep.next_obs, od, i),
+            state: ep
+                .states
+                .get(i * sd..(i + 1) * sd)
+                .unwrap_or(&[])
+                .to_vec(),
+            done: i + 1 == t,
+        }));
+    }
+    out
+}
+
+/// The first `n` steps of `c` as a `/train/chunk` record.
+fn chunk_record(
+    iteration: usize,
+    actor: usize,
+    c: &Chunk,
+    n: usize,
+    rewards: Option<&[f32]>,
+) -> pb::TrainingChunk {
+    let take = |v: &[f32], w: usize| v[..(n * w).min(v.len())].to_vec();
+    pb::TrainingChunk {
+        iteration: iteration as u32,
+        policy_version: c.policy_version,
+        actor: actor as u32,
+        len: n as u32,
+        obs_dim: c.obs_dim as u32,
+        act_dim: c.act_dim as u32,
+        n_codes: c.n_codes as u32,
+        obs: take(&c.obs, c.obs_dim),
+        act: take(&c.act, c.act_dim),
+        code: take(&c.code, c.n_codes),
+        gumbel: take(&c.gumbel, c.n_codes),
+        eps: take(&c.eps, 1),
+        reward: rewards.map(<[f32]>::to_vec).unwrap_or_default(),
+        done: c
+            .terminated
+            .iter()
+            .zip(&c.truncated)
+            .take(n)
+            .map(|(a, b)| *a || *b)
+            .collect(),
+        logp: take(&c.logp, 1),
+        next_obs: take(&c.next_obs, c.obs_dim),
+    }
+}
+
+/// One message read back, with its log time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Logged {
+    /// Log time (ns since the Unix epoch).
+    pub log_time: u64,
+    /// The message.
+    pub record: Record,
+}
+
+/// Everything [`read`] could recover from a run log.
+#[derive(Debug, Clone, Default)]
+pub struct RunLogContents {
+    /// Every complete message in file order.
+    pub records: Vec<Logged>,
+    /// Why reading stopped before the end of a complete file (a truncated or damaged
+    /// file: everything before the first unreadable record is in `records`); `None`
+    /// for an intact file.
+    pub truncated: Option<String>,
+    /// Messages on topics this version does not know (skipped).
+    pub unknown: usize,
+}
+
+impl RunLogContents {
+    /// The records without their times.
+    pub fn messages(&self) -> impl Iterator<Item = &Record> {
+        self.records.iter().map(|l| &l.record)
+    }
+
+    /// The last `/config` record.
+    pub fn config(&self) -> Option<&pb::RunConfig> {
+        self.records.iter().rev().find_map(|l| match &l.record {
+            Record::Config(c) => Some(c),
+            _ => None,
+        })
+    }
+}
+
+/// Reads the run log at `path`, streaming, and returns every complete message; a
+/// truncated file is no error (see [`RunLogContents::truncated`]). Errors: the file
+/// cannot be opened, does not start with the MCAP magic, has a known topic with a
+/// foreign schema, or a complete message that does not decode.
+pub fn read(path: &Path) -> Result<RunLogContents, RunLogError> {
+    let file = File::open(path).map_err(|source| RunLogError::Io {
+        path: path.to_path_buf(),
+        what: "opening the run log",
+        source,
+    })?;
+    read_from(path, std::io::BufReader::new(file))
+}
+
+/// [`read`] over any reader; `path` names it in errors.
+pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, RunLogError> {
+    let io = |source| RunLogError::Io {
+        path: path.to_path_buf(),
+        what: "reading the run log",
+        source,
+    };
+    let mut head = Vec::with_capacity(mcap::MAGIC.len());
+    (&mut source)
+        .take(mcap::MAGIC.len() as u64)
+        .read_to_end(&mut head)
+        .map_err(io)?;
+    if !mcap::MAGIC.starts_with(&head) {
+        return Err(RunLogError::NotMcap {
+            path: path.to_path_buf(),
+        });
+    }
+    let mut out = RunLogContents::default();
+    if head.len() < mcap::MAGIC.len() {
+        out.truncated = Some(format!("the file ends after {} bytes", head.len()));
+        return Ok(out);
+    }
+    let reader = mcap::io::MessageReader::new(std::io::Cursor::new(head).chain(source));
+    for (index, msg) in reader.enumerate() {
+        let msg = match msg {
+            Ok(m) => m,
+            Err(e) => {
+                out.truncated = Some(e.to_string());
+                break;
+            }
+        };
+        let ch = &msg.channel;
+        let Some(kind) = TOPICS.iter().position(|(t, _)| *t == ch.topic) else {
+            out.unknown += 1;
+            continue;
+        };
+        let expected = TOPICS[kind].1;
+        let (found, schema_encoding) = ch
+            .schema
+            .as_ref()
+            .map(|s| (s.name.clone(), s.encoding.clone()))
+            .unwrap_or_default();
+        if found != expected || schema_encoding != PROTOBUF || ch.message_encoding != PROTOBUF {
+            return Err(RunLogError::WrongSchema {
+                path: path.to_path_buf(),
+                topic: ch.topic.clone(),
+                found,
+                schema_encoding,
+                message_encoding: ch.message_encoding.clone(),
+                expected,
+            });
+        }
+        let record = Record::decode(kind, &msg.data).map_err(|source| RunLogError::Decode {
+            path: path.to_path_buf(),
+            topic: ch.topic.clone(),
+            index,
+            schema: expected,
+            source,
+        })?;
+        out.records.push(Logged {
+            log_time: msg.log_time,
+            record,
+        });
+    }
+    Ok(out)
+}
