@@ -307,6 +307,8 @@ pub fn eval_episode(
     };
     env.reset(seed, &mut obs)?;
     ep.start_obs = obs.clone();
+    ep.start_state = env.state();
+    ep.state_dim = ep.start_state.len();
     for _ in 0..s.max_steps {
         actor.act_deterministic(w, &obs, eps, &c, &mut act);
         let out = env.step(&act, &mut next)?;
@@ -315,6 +317,7 @@ pub fn eval_episode(
         ep.act.extend_from_slice(&act);
         ep.next_obs.extend_from_slice(&next);
         ep.mode_rewards.extend_from_slice(&rew);
+        ep.states.extend(env.state());
         std::mem::swap(&mut obs, &mut next);
         if out.terminated || out.truncated {
             break;

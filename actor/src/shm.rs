@@ -664,6 +664,7 @@ fn evaluate_and_publish(
         obs_dim: spec.obs_dim,
         act_dim: spec.act_dim,
         n_modes: ep.n_modes,
+        state_dim: ep.state_dim,
         len: ep.len(),
     };
     let header = ShmEpisodeHeader {
@@ -678,9 +679,13 @@ fn evaluate_and_publish(
         act_dim: spec.act_dim as u32,
         n_modes: ep.n_modes as u32,
         eps_bits: ep.eps.to_bits(),
+        state_dim: ep.state_dim as u32,
         ..Default::default()
     };
     let arrays = EpisodeArrays {
+        start_state: ep.start_state,
+        states: ep.states,
+        start_obs: ep.start_obs,
         obs: ep.obs,
         act: ep.act,
         next_obs: ep.next_obs,

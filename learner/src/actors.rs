@@ -686,6 +686,11 @@ impl EvalRunner for ShmActors {
                 out[job] = Some(EvalEpisode {
                     code: h.code as usize,
                     eps: f32::from_bits(h.eps_bits),
+                    reset_seed: jobs[job].seed,
+                    start_obs: e.start_obs,
+                    start_state: e.start_state,
+                    states: e.states,
+                    state_dim: h.state_dim as usize,
                     obs: e.obs,
                     act: e.act,
                     next_obs: e.next_obs,

@@ -10,7 +10,8 @@
 //!   task reward).
 //! - [`presets`]: the method presets, embedded in the binary.
 //! - [`plot`], [`report`]: PNG figures.
-//! - [`runlog`]: the MCAP run log `run.mcap` (writer, truncation-tolerant reader).
+//! - [`runlog`]: the MCAP run log `run.mcap` (writer, truncation-tolerant reader);
+//!   [`replay`]: `ess replay`, re-simulating its evaluation episodes.
 
 pub mod actors;
 pub mod classifier;
@@ -22,6 +23,7 @@ pub mod objective;
 pub mod plot;
 pub mod ppo;
 pub mod presets;
+pub mod replay;
 pub mod report;
 pub mod runlog;
 pub mod table;

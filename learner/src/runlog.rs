@@ -590,11 +590,7 @@ pub fn episode_records(
             eps: ep.eps,
             mode_rewards: rows(&ep.mode_rewards, k, i),
             next_obs: rows(&ep.next_obs, od, i),
-            state: ep
-                .states
-                .get(i * sd..(i + 1) * sd)
-                .unwrap_or(&[])
-                .to_vec(),
+            state: ep.states.get(i * sd..(i + 1) * sd).unwrap_or(&[]).to_vec(),
             done: i + 1 == t,
         }));
     }

@@ -345,6 +345,8 @@ pub fn run(
         .with_context(|| format!("creating output dir {}", out.display()))?;
     std::fs::write(out.join("config.toml"), cfg.to_toml())
         .with_context(|| format!("writing {}", out.join("config.toml").display()))?;
+    // Finished on every way out of this function (drop), see `crate::runlog`.
+    let mut runlog = crate::runlog::RunLog::create(&out.join("run.mcap"), cfg)?;
     let seed = cfg.run.seed;
     let threads = if cfg.run.torch_threads > 0 {
         cfg.run.torch_threads
@@ -667,6 +669,7 @@ pub fn run(
             .collect();
         log.reward_mean =
             rewards.iter().map(|&r| r as f64).sum::<f64>() / rewards.len().max(1) as f64;
+        runlog.chunks(it, &chunks, &rewards)?;
         let (adv, ret) = rollout_gae(
             &cfg.ppo,
             &mut scaler,
@@ -715,7 +718,7 @@ pub fn run(
                 &obs_std,
                 it as u64,
             )?;
-            let (r, _) = evaluate_on(
+            let (r, eval_episodes) = evaluate_on(
                 &reference,
                 actors.as_mut(),
                 eval_env.as_mut(),
@@ -724,6 +727,7 @@ pub fn run(
                 cfg.run.eval_episodes_periodic,
                 seed ^ 0xE7A1,
             )?;
+            runlog.eval_episodes(it, false, &eval_episodes)?;
             curve.push((env_steps, r.nmi, r.ent, r.normalized_reward));
             log.nmi = Some(r.nmi);
             log.ent = Some(r.ent);
@@ -733,6 +737,7 @@ pub fn run(
             save_checkpoint(&ckpt_dir, &vs, &prior_vs, &dvs, it)?;
         }
         progress.iteration(&log);
+        runlog.iteration(&log)?;
         if let Some(done) = pending.replace(log) {
             write_csv_row(&mut csv, &done)?;
         }
@@ -757,6 +762,7 @@ pub fn run(
         cfg.run.eval_episodes,
         seed ^ 0xF1AA,
     )?;
+    runlog.eval_episodes(iters_done, true, &episodes)?;
     // The final evaluation completes the last iteration's row (no iteration ran: a
     // row of iteration 0 for the untrained policy).
     let mut last = pending.unwrap_or_else(|| IterationLog {
@@ -774,6 +780,8 @@ pub fn run(
     last.normalized_reward = Some(result.normalized_reward);
     write_csv_row(&mut csv, &last)?;
     csv.flush()?;
+    runlog.iteration(&last)?;
+    runlog.finish()?;
 
     if spec.name == "traj2d" {
         crate::report::plot_traj2d(

@@ -29,7 +29,7 @@ pub const CHUNK_MAGIC: u32 = u32::from_le_bytes(*b"ESSC");
 /// `b"ESSW"`: first field of a weights header.
 pub const WEIGHTS_MAGIC: u32 = u32::from_le_bytes(*b"ESSW");
 /// Version of these layouts; bumped on any change.
-pub const LAYOUT_VERSION: u32 = 1;
+pub const LAYOUT_VERSION: u32 = 2;
 /// Most MLP layer sizes (input, hidden.., output) a weights header can carry.
 pub const MAX_LAYER_SIZES: usize = 8;
 
@@ -722,17 +722,19 @@ pub fn read_weights(buf: &[u8]) -> Result<WeightsMsg, ShmError> {
 /// `b"ESSE"`: first field of an evaluation-episode header.
 pub const EPISODE_MAGIC: u32 = u32::from_le_bytes(*b"ESSE");
 
-/// Fixed header of an evaluation-episode buffer (72 bytes): one deterministic episode
+/// Fixed header of an evaluation-episode buffer (80 bytes): one deterministic episode
 /// with a given one-hot code, actor -> learner on the `chunks` service (told apart from
 /// a chunk by its magic).
 ///
-/// Sizing: the buffer holds `len` steps of `obs`, `act`, `next_obs` and `mode_rewards`,
-/// `72 + 4 * len * (2 * obs_dim + act_dim + n_modes)` bytes ([`ShmEpisodeLayout`]). One
-/// episode travels as one sample, so the largest sample is the env's longest episode: a
-/// 1000-step Humanoid episode (obs 348, act 17, 3 modes) is 72 + 4 * 1000 * 716 bytes =
-/// 2.86 MB (2.73 MiB), slightly below a 1000-step Humanoid rollout chunk (2.96 MB). An
-/// actor's chunk publisher is sized for its rollout share and grows (power of two, so at
-/// most 4 MiB a sample here) when an episode is larger.
+/// Sizing: after the header the buffer holds the env's state after `reset` and after
+/// each step (`f64`, `(len + 1) * state_dim`, for the run log and `ess replay`), then
+/// the observation after `reset` and `len` steps of `obs`, `act`, `next_obs` and
+/// `mode_rewards` (`f32`): `80 + 8 * (len + 1) * state_dim + 4 * (obs_dim + len * (2 *
+/// obs_dim + act_dim + n_modes))` bytes ([`ShmEpisodeLayout`]). One episode travels as
+/// one sample, so the largest sample is the env's longest episode: a 1000-step Humanoid
+/// episode (obs 348, act 17, 3 modes, state of a few hundred values) is about 2.9 MB of
+/// `f32` arrays plus 8 bytes per state value and step. An actor's chunk publisher is
+/// sized for its rollout share and grows (power of two) when an episode is larger.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Pod, Zeroable)]
 pub struct ShmEpisodeHeader {
@@ -762,6 +764,10 @@ pub struct ShmEpisodeHeader {
     pub n_modes: u32,
     /// `f32::to_bits` of the eps the policy was given.
     pub eps_bits: u32,
+    /// Length of one env state vector (`Env::state`).
+    pub state_dim: u32,
+    /// Zero (keeps the header a multiple of 8 bytes).
+    pub reserved: u32,
 }
 
 const EHEADER_BYTES: usize = std::mem::size_of::<ShmEpisodeHeader>();
@@ -775,6 +781,8 @@ pub struct ShmEpisodeLayout {
     pub act_dim: usize,
     /// Behaviour modes.
     pub n_modes: usize,
+    /// Length of one env state vector.
+    pub state_dim: usize,
     /// Steps.
     pub len: usize,
 }
@@ -782,8 +790,9 @@ pub struct ShmEpisodeLayout {
 impl ShmEpisodeLayout {
     /// Bytes of the whole buffer, header included, rounded up to 8.
     pub fn bytes(&self) -> usize {
-        let floats = self.len * (2 * self.obs_dim + self.act_dim + self.n_modes);
-        (EHEADER_BYTES + 4 * floats).div_ceil(8) * 8
+        let doubles = (self.len + 1) * self.state_dim;
+        let floats = self.obs_dim + self.len * (2 * self.obs_dim + self.act_dim + self.n_modes);
+        (EHEADER_BYTES + 8 * doubles + 4 * floats).div_ceil(8) * 8
     }
 
     /// `u64` words of the whole buffer (the slice length to loan).
@@ -802,6 +811,7 @@ impl ShmEpisodeLayout {
             ("obs_dim", h.obs_dim),
             ("act_dim", h.act_dim),
             ("n_modes", h.n_modes),
+            ("state_dim", h.state_dim),
         ] {
             if v > 1 << 20 {
                 return Err(bad(field, v.into()));
@@ -814,6 +824,7 @@ impl ShmEpisodeLayout {
             obs_dim: h.obs_dim as usize,
             act_dim: h.act_dim as usize,
             n_modes: h.n_modes as usize,
+            state_dim: h.state_dim as usize,
             len: h.len as usize,
         })
     }
@@ -822,6 +833,12 @@ impl ShmEpisodeLayout {
 /// The arrays of one evaluation episode, `[len][dim]` each.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct EpisodeArrays {
+    /// The env's state after `reset` (`[state_dim]`).
+    pub start_state: Vec<f64>,
+    /// The env's state after each step.
+    pub states: Vec<f64>,
+    /// Observation after `reset` (`[obs_dim]`).
+    pub start_obs: Vec<f32>,
     /// Observations before each step.
     pub obs: Vec<f32>,
     /// Actions.
@@ -844,6 +861,9 @@ pub fn write_episode(
     check_len(buf, "episode", l.bytes())?;
     let n = l.len;
     for (field, got, want) in [
+        ("start_state", e.start_state.len(), l.state_dim),
+        ("states", e.states.len(), n * l.state_dim),
+        ("start_obs", e.start_obs.len(), l.obs_dim),
         ("obs", e.obs.len(), n * l.obs_dim),
         ("act", e.act.len(), n * l.act_dim),
         ("next_obs", e.next_obs.len(), n * l.obs_dim),
@@ -862,7 +882,14 @@ pub fn write_episode(
     header.layout_version = LAYOUT_VERSION;
     let (hb, mut rest) = buf.split_at_mut(EHEADER_BYTES);
     hb.copy_from_slice(bytemuck::bytes_of(&header));
-    for src in [&e.obs, &e.act, &e.next_obs, &e.mode_rewards] {
+    for src in [&e.start_state, &e.states] {
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(8 * src.len());
+        rest = tail;
+        bytemuck::try_cast_slice_mut::<u8, f64>(head)
+            .map_err(|_| ShmError::Misaligned { what: "episode" })?
+            .copy_from_slice(src);
+    }
+    for src in [&e.start_obs, &e.obs, &e.act, &e.next_obs, &e.mode_rewards] {
         split_f32_mut(&mut rest, src.len())
             .map_err(|_| ShmError::Misaligned { what: "episode" })?
             .copy_from_slice(src);
@@ -880,6 +907,15 @@ pub fn read_episode(buf: &[u8]) -> Result<(ShmEpisodeHeader, EpisodeArrays), Shm
     check_len(buf, "episode", l.bytes())?;
     let n = l.len;
     let mut rest = &buf[EHEADER_BYTES..];
+    let mut take64 = |m: usize| {
+        let (head, tail) = rest.split_at(8 * m);
+        rest = tail;
+        bytemuck::try_cast_slice::<u8, f64>(head)
+            .map(<[f64]>::to_vec)
+            .map_err(|_| ShmError::Misaligned { what: "episode" })
+    };
+    let start_state = take64(l.state_dim)?;
+    let states = take64(n * l.state_dim)?;
     let mut take = |m| {
         split_f32(&mut rest, m)
             .map(<[f32]>::to_vec)
@@ -888,6 +924,9 @@ pub fn read_episode(buf: &[u8]) -> Result<(ShmEpisodeHeader, EpisodeArrays), Shm
     Ok((
         h,
         EpisodeArrays {
+            start_state,
+            states,
+            start_obs: take(l.obs_dim)?,
             obs: take(n * l.obs_dim)?,
             act: take(n * l.act_dim)?,
             next_obs: take(n * l.obs_dim)?,
@@ -1110,7 +1149,11 @@ mod tests {
     fn episode_roundtrip_preserves_every_field_and_refuses_chunks() {
         let (od, ad, nm, n) = (3, 2, 4, 7);
         let f = |m: usize, s: f32| (0..m).map(|i| i as f32 * 0.25 - s).collect::<Vec<f32>>();
+        let sd = 5;
         let e = EpisodeArrays {
+            start_state: (0..sd).map(|i| i as f64 * 0.1 + 1e-12).collect(),
+            states: (0..n * sd).map(|i| -(i as f64) * 0.3).collect(),
+            start_obs: f(od, 0.5),
             obs: f(n * od, 1.0),
             act: f(n * ad, 2.0),
             next_obs: f(n * od, 3.0),
@@ -1128,12 +1171,14 @@ mod tests {
             act_dim: ad as u32,
             n_modes: nm as u32,
             eps_bits: 0.5f32.to_bits(),
+            state_dim: sd as u32,
             ..Default::default()
         };
         let l = ShmEpisodeLayout {
             obs_dim: od,
             act_dim: ad,
             n_modes: nm,
+            state_dim: sd,
             len: n,
         };
         let mut words = aligned(l.bytes());
