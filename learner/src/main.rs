@@ -564,7 +564,7 @@ fn replay(a: ReplayArgs) -> Result<()> {
         ReplayError::Plot(_) => anyhow::Error::new(e),
         e => input_err(e),
     };
-    if !(a.tol >= 0.0) {
+    if a.tol.is_nan() || a.tol < 0.0 {
         return Err(input_err(format!("--tol {} must be >= 0", a.tol)));
     }
     let rec = load(&a.file).map_err(input)?;

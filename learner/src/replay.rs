@@ -449,3 +449,144 @@ fn body_paths(traj: &Trajectory) -> Vec<(Vec<(f32, f32)>, usize)> {
         _ => Vec::new(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runlog::RunLog;
+    use ess_actor::{LatentSpec, PolicyWeights, eval_episode};
+    use ess_envs::make_env;
+    use ess_proto::config::{ConfigBuilder, LatentPrior};
+    use ess_proto::{Mlp, MlpLayout};
+
+    /// A run log of `per_code` evaluation episodes per code of a fixed non-trivial
+    /// policy on `env`, written through [`RunLog`] as `ess train` does.
+    fn record_episodes(dir: &Path, env: &str, n_modes: usize, per_code: usize) -> PathBuf {
+        let mut b = ConfigBuilder::new();
+        b.set(&format!("env.name=\"{env}\"")).unwrap();
+        b.set(&format!("env.n_modes={n_modes}")).unwrap();
+        let cfg = b.build().unwrap();
+        let mut e = make_env(env, n_modes).unwrap();
+        let s = e.spec().clone();
+        let layout = MlpLayout::new(s.obs_dim + 1 + n_modes, &[16], s.act_dim).unwrap();
+        let params = (0..layout.n_params())
+            .map(|i| (i as f32 * 0.37).sin() * 0.5)
+            .collect();
+        let w = PolicyWeights {
+            version: 1,
+            mean: Mlp::new(layout, params).unwrap(),
+            log_std: vec![-0.5; s.act_dim],
+            prior_logits: vec![0.0; n_modes],
+            obs_mean: vec![0.0; s.obs_dim],
+            obs_std: vec![1.0; s.obs_dim],
+        };
+        let latent = LatentSpec {
+            prior: LatentPrior::Uniform,
+            n_codes: n_modes,
+            tau: 1.0,
+            use_eps: true,
+        };
+        let episodes: Vec<_> = (0..n_modes * per_code)
+            .map(|j| {
+                eval_episode(
+                    e.as_mut(),
+                    &w,
+                    &latent,
+                    j % n_modes,
+                    0.3 - 0.1 * j as f32,
+                    j as u64 + 11,
+                )
+                .unwrap()
+            })
+            .collect();
+        let path = dir.join("run.mcap");
+        let mut log = RunLog::create(&path, &cfg).unwrap();
+        log.eval_episodes(0, true, &episodes).unwrap();
+        log.finish().unwrap();
+        path
+    }
+
+    fn replays_within_tolerance(env: &str, n_modes: usize) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = record_episodes(dir.path(), env, n_modes, 1);
+        let rec = load(&path).unwrap();
+        let rows = list(&rec);
+        assert_eq!(rows.len(), n_modes);
+        for r in &rows {
+            assert!(
+                r.length > 1 && r.recorded_steps == r.length as usize,
+                "{r:?}"
+            );
+            let (report, traj) = replay(&rec, r.episode).unwrap();
+            assert_eq!(report.steps, r.length as usize);
+            assert!(report.max_deviation() < 1e-6, "{report:?}");
+            assert_eq!(report.reset_deviation, 0.0, "{report:?}");
+            // The episode moved: states differ along the way.
+            assert!(max_abs(&traj.recorded[0], &traj.recorded[report.steps]) > 1e-3);
+        }
+    }
+
+    #[test]
+    fn traj2d_episodes_replay_within_1e_6_of_the_recording() {
+        replays_within_tolerance("traj2d", 4);
+    }
+
+    #[test]
+    fn reacher_episodes_replay_within_1e_6_of_the_recording() {
+        replays_within_tolerance("reacher", 2);
+    }
+
+    #[test]
+    fn a_changed_action_shows_up_as_a_deviation() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = record_episodes(dir.path(), "reacher", 2, 1);
+        let mut rec = load(&path).unwrap();
+        let steps = &mut rec.episodes[0].1;
+        let k = steps.len() / 2;
+        steps[k].action[0] = -steps[k].action[0] + 0.5;
+        let (report, _) = replay(&rec, 0).unwrap();
+        assert!(report.max_state_deviation > 1e-6, "{report:?}");
+        assert!(report.max_state_deviation_step >= k, "{report:?}");
+    }
+
+    #[test]
+    fn a_missing_episode_is_named_with_the_file_and_the_available_range() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = record_episodes(dir.path(), "traj2d", 4, 1);
+        let rec = load(&path).unwrap();
+        let e = replay(&rec, 9).unwrap_err().to_string();
+        assert!(
+            e.contains("run.mcap") && e.contains("episode 9") && e.contains("0..=3"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn reacher_plot_draws_joint_positions_and_the_fingertip_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = record_episodes(dir.path(), "reacher", 2, 1);
+        let rec = load(&path).unwrap();
+        let (_, traj) = replay(&rec, 1).unwrap();
+        // qpos_len fits the state: the shoulder/elbow angles follow the time.
+        let mut env = Reacher::new(ReacherConfig {
+            n_modes: 2,
+            ..ReacherConfig::default()
+        })
+        .unwrap();
+        env.set_state(&traj.recorded[5]).unwrap();
+        assert_eq!(
+            env.joint_angles().to_vec(),
+            traj.recorded[5][1..1 + qpos_len("reacher").unwrap()].to_vec()
+        );
+        let out = dir.path().join("ep1.png");
+        let files = plot(&out, &traj, "reacher episode 1").unwrap();
+        assert_eq!(files, vec![out.clone(), dir.path().join("ep1-path.png")]);
+        for f in files {
+            assert!(
+                std::fs::metadata(&f).unwrap().len() > 1000,
+                "{}",
+                f.display()
+            );
+        }
+    }
+}

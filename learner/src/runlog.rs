@@ -135,7 +135,7 @@ pub enum RunLogError {
         path: PathBuf,
         /// The writer's error.
         #[source]
-        source: mcap::McapError,
+        source: Box<mcap::McapError>,
     },
     /// The file does not start with the MCAP magic.
     #[error("{} is not an MCAP file (it does not start with the MCAP magic bytes)", path.display())]
@@ -145,7 +145,7 @@ pub enum RunLogError {
     },
     /// A known topic with another schema or encoding than the run log's.
     #[error(
-        "{}: topic {topic} has schema `{found}` (schema encoding `{schema_encoding}`, message encoding `{message_encoding}`), expected `{expected}` with protobuf encodings: not an Ess run log of this version",
+        "{}: topic {topic} has {found}, expected schema `{expected}` with protobuf encodings: not an Ess run log of this version",
         path.display()
     )]
     WrongSchema {
@@ -153,12 +153,8 @@ pub enum RunLogError {
         path: PathBuf,
         /// The topic.
         topic: String,
-        /// The schema name found.
+        /// The schema name and encodings found.
         found: String,
-        /// Its schema encoding.
-        schema_encoding: String,
-        /// The channel's message encoding.
-        message_encoding: String,
         /// The schema name expected.
         expected: &'static str,
     },
@@ -294,9 +290,9 @@ impl RunLog {
             what: "creating the run log",
             source,
         })?;
-        let mcap_err = |source| RunLogError::Mcap {
+        let mcap_err = |source: mcap::McapError| RunLogError::Mcap {
             path: path.to_path_buf(),
-            source,
+            source: Box::new(source),
         };
         let mut writer = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Zstd))
@@ -437,7 +433,7 @@ impl RunLog {
         w.write_to_known_channel(&header, &data)
             .map_err(|source| RunLogError::Mcap {
                 path: path.clone(),
-                source,
+                source: Box::new(source),
             })
     }
 
@@ -447,7 +443,7 @@ impl RunLog {
         if let Some(w) = self.writer.as_mut() {
             w.flush().map_err(|source| RunLogError::Mcap {
                 path: self.path.clone(),
-                source,
+                source: Box::new(source),
             })?;
         }
         Ok(())
@@ -524,7 +520,7 @@ impl RunLog {
         };
         w.finish().map_err(|source| RunLogError::Mcap {
             path: self.path.clone(),
-            source,
+            source: Box::new(source),
         })?;
         w.into_inner().flush().map_err(|source| RunLogError::Io {
             path: self.path.clone(),
@@ -728,9 +724,10 @@ pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, R
             return Err(RunLogError::WrongSchema {
                 path: path.to_path_buf(),
                 topic: ch.topic.clone(),
-                found,
-                schema_encoding,
-                message_encoding: ch.message_encoding.clone(),
+                found: format!(
+                    "schema `{found}` (schema encoding `{schema_encoding}`, message encoding `{}`)",
+                    ch.message_encoding
+                ),
                 expected,
             });
         }
@@ -747,4 +744,477 @@ pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, R
         });
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn opts() -> LogOptions {
+        LogOptions {
+            chunks_every: 1,
+            chunk_steps: 8,
+            periodic_evals: true,
+            n_codes: 3,
+            one_hot: true,
+        }
+    }
+
+    fn floats(n: usize) -> impl Strategy<Value = Vec<f32>> {
+        prop::collection::vec(-1e6f32..1e6, 0..n)
+    }
+
+    fn doubles(n: usize) -> impl Strategy<Value = Vec<f64>> {
+        prop::collection::vec(-1e9f64..1e9, 0..n)
+    }
+
+    fn metrics() -> impl Strategy<Value = pb::IterationMetrics> {
+        (
+            any::<u32>(),
+            any::<u64>(),
+            prop::array::uniform16(-1e9f64..1e9),
+            floats(6),
+            prop::option::of(-1.0f64..2.0),
+            prop::option::of(0.0f64..3.0),
+            prop::option::of(-5.0f64..5.0),
+        )
+            .prop_map(|(iteration, env_steps, v, prior, nmi, ent, nr)| {
+                pb::IterationMetrics {
+                    iteration,
+                    env_steps,
+                    wall_s: v[0],
+                    rollout_s: v[1],
+                    disc_s: v[2],
+                    ppo_s: v[3],
+                    disc_bce: v[4],
+                    d_acc_expert: v[5],
+                    d_acc_policy: v[6],
+                    qc_labeled: v[7],
+                    qc_generated: v[8],
+                    qeps: v[9],
+                    rim_entropy: v[10],
+                    rim_kl: v[11],
+                    contrastive: v[12],
+                    reward_mean: v[13],
+                    policy_loss: v[14],
+                    value_loss: v[15],
+                    entropy: -v[0],
+                    approx_kl: -v[1],
+                    prior,
+                    nmi,
+                    ent,
+                    normalized_reward: nr,
+                }
+            })
+    }
+
+    fn eval_step() -> impl Strategy<Value = pb::EvalStep> {
+        (
+            (any::<u32>(), any::<u32>(), any::<bool>(), -1f32..1.0),
+            (floats(12), floats(4), floats(4), floats(5), floats(12)),
+            doubles(40),
+        )
+            .prop_map(
+                |((episode, step, done, eps), (obs, action, c, mode_rewards, next_obs), state)| {
+                    pb::EvalStep {
+                        episode,
+                        step,
+                        obs,
+                        action,
+                        c,
+                        eps,
+                        mode_rewards,
+                        next_obs,
+                        state,
+                        done,
+                    }
+                },
+            )
+    }
+
+    fn eval_episode() -> impl Strategy<Value = pb::EvalEpisode> {
+        (
+            (any::<u32>(), any::<u32>(), any::<bool>(), any::<u32>()),
+            (-1f32..1.0, any::<u64>(), any::<u32>()),
+            (doubles(40), floats(12), doubles(5)),
+        )
+            .prop_map(
+                |(
+                    (episode, iteration, final_eval, code),
+                    (eps, reset_seed, length),
+                    (start_state, start_obs, mode_returns),
+                )| pb::EvalEpisode {
+                    episode,
+                    iteration,
+                    final_eval,
+                    code,
+                    eps,
+                    reset_seed,
+                    start_state,
+                    start_obs,
+                    length,
+                    mode_returns,
+                    obs_dim: 12,
+                    act_dim: 4,
+                },
+            )
+    }
+
+    fn training_chunk() -> impl Strategy<Value = pb::TrainingChunk> {
+        (
+            (any::<u32>(), any::<u64>(), any::<u32>(), any::<u32>()),
+            (floats(64), floats(16), floats(16), floats(16)),
+            (
+                floats(8),
+                floats(8),
+                prop::collection::vec(any::<bool>(), 0..8),
+            ),
+            (floats(8), floats(64)),
+        )
+            .prop_map(
+                |(
+                    (iteration, policy_version, actor, len),
+                    (obs, act, code, gumbel),
+                    (eps, reward, done),
+                    (logp, next_obs),
+                )| pb::TrainingChunk {
+                    iteration,
+                    policy_version,
+                    actor,
+                    len,
+                    obs_dim: 8,
+                    act_dim: 2,
+                    n_codes: 2,
+                    obs,
+                    act,
+                    code,
+                    gumbel,
+                    eps,
+                    reward,
+                    done,
+                    logp,
+                    next_obs,
+                },
+            )
+    }
+
+    fn record() -> impl Strategy<Value = Record> {
+        prop_oneof![
+            metrics().prop_map(Record::Metrics),
+            eval_step().prop_map(Record::EvalStep),
+            eval_episode().prop_map(Record::EvalEpisode),
+            training_chunk().prop_map(Record::TrainingChunk),
+            ("[a-z =\n]{0,40}", any::<u64>()).prop_map(|(toml, seed)| Record::Config(
+                pb::RunConfig {
+                    toml,
+                    method: "m".into(),
+                    env: "traj2d".into(),
+                    n_modes: 4,
+                    seed,
+                }
+            )),
+        ]
+    }
+
+    /// Writes `records` (log time = index) flushing after each group of `group`
+    /// messages; returns the finished file's bytes and, per flush, (file length,
+    /// messages written so far).
+    fn write_file(dir: &Path, records: &[Record], group: usize) -> (Vec<u8>, Vec<(u64, usize)>) {
+        let path = dir.join("run.mcap");
+        let mut log = RunLog::open_writer(&path, opts()).unwrap();
+        let mut flushed = Vec::new();
+        for (i, r) in records.iter().enumerate() {
+            log.write_at(i as u64, r).unwrap();
+            if (i + 1) % group.max(1) == 0 {
+                log.flush().unwrap();
+                flushed.push((std::fs::metadata(&path).unwrap().len(), i + 1));
+            }
+        }
+        log.finish().unwrap();
+        (std::fs::read(&path).unwrap(), flushed)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+
+        #[test]
+        fn every_message_written_is_read_back_equal(
+            records in prop::collection::vec(record(), 0..40),
+            group in 1usize..10,
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let (bytes, _) = write_file(dir.path(), &records, group);
+            let back = read_from(Path::new("mem"), bytes.as_slice()).unwrap();
+            prop_assert_eq!(&back.truncated, &None);
+            prop_assert_eq!(back.unknown, 0);
+            let got: Vec<Record> = back.messages().cloned().collect();
+            prop_assert_eq!(&got, &records);
+            let times: Vec<u64> = back.records.iter().map(|l| l.log_time).collect();
+            prop_assert_eq!(times, (0..records.len() as u64).collect::<Vec<_>>());
+        }
+
+        #[test]
+        fn a_file_cut_anywhere_yields_its_complete_prefix(
+            records in prop::collection::vec(record(), 1..30),
+            group in 1usize..6,
+            cuts in prop::collection::vec(0.0f64..1.0, 8),
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let (bytes, flushed) = write_file(dir.path(), &records, group);
+            for f in cuts {
+                let cut = ((bytes.len() as f64) * f) as usize;
+                let back = read_from(Path::new("cut"), &bytes[..cut]).unwrap();
+                let got: Vec<Record> = back.messages().cloned().collect();
+                // Every message read is the one written at its place...
+                prop_assert!(got.len() <= records.len());
+                prop_assert_eq!(&got[..], &records[..got.len()]);
+                // ...and every message flushed before the cut is there.
+                let complete = flushed
+                    .iter()
+                    .filter(|(len, _)| *len as usize <= cut)
+                    .map(|(_, n)| *n)
+                    .max()
+                    .unwrap_or(0);
+                prop_assert!(got.len() >= complete, "cut {cut}: {} < {complete}", got.len());
+                prop_assert!(back.truncated.is_some() || cut == bytes.len());
+            }
+        }
+    }
+
+    #[test]
+    fn iteration_log_maps_every_field_into_iteration_metrics() {
+        let l = IterationLog {
+            iteration: 7,
+            env_steps: 700,
+            wall_s: 1.5,
+            disc_bce: 0.6,
+            rim_kl: 0.01,
+            prior: "0.2500;0.7500".into(),
+            nmi: Some(0.9),
+            ..Default::default()
+        };
+        let m = pb::IterationMetrics::from(&l);
+        assert_eq!((m.iteration, m.env_steps), (7, 700));
+        assert_eq!((m.wall_s, m.disc_bce, m.rim_kl), (1.5, 0.6, 0.01));
+        assert_eq!(m.prior, vec![0.25, 0.75]);
+        assert_eq!((m.nmi, m.ent), (Some(0.9), None));
+    }
+
+    fn metrics_of(it: u32, nmi: Option<f64>) -> Record {
+        Record::Metrics(pb::IterationMetrics {
+            iteration: it,
+            nmi,
+            ..Default::default()
+        })
+    }
+
+    fn episode_of(id: u32, it: u32, final_eval: bool) -> [Record; 2] {
+        [
+            Record::EvalEpisode(pb::EvalEpisode {
+                episode: id,
+                iteration: it,
+                final_eval,
+                length: 1,
+                ..Default::default()
+            }),
+            Record::EvalStep(pb::EvalStep {
+                episode: id,
+                ..Default::default()
+            }),
+        ]
+    }
+
+    #[test]
+    fn reopen_keeps_iterations_up_to_the_checkpoint_and_drops_the_final_evaluation() {
+        let cfg = ess_proto::config::ConfigBuilder::new().build().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let chunk = |it| {
+            Record::TrainingChunk(pb::TrainingChunk {
+                iteration: it,
+                ..Default::default()
+            })
+        };
+        let mut written = vec![Record::Config(config_record(&cfg))];
+        for it in 1..=4 {
+            written.push(chunk(it));
+            written.push(metrics_of(it, None));
+            if it % 2 == 0 {
+                written.extend(episode_of(it / 2 - 1, it, false));
+            }
+        }
+        // The interrupted run's final evaluation at iteration 4.
+        written.extend(episode_of(2, 4, true));
+        written.push(metrics_of(4, Some(0.5)));
+        let mut log = RunLog::open_writer(&path, LogOptions::of(&cfg)).unwrap();
+        for r in &written {
+            log.record(r).unwrap();
+        }
+        // Killed: the file is left without its summary, cut inside the last chunk.
+        log.flush().unwrap();
+        let tail = metrics_of(5, None);
+        log.record(&tail).unwrap();
+        log.flush().unwrap();
+        drop(log);
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() - 60]).unwrap();
+
+        let mut log = RunLog::reopen(&path, &cfg, 3).unwrap();
+        log.iteration(&IterationLog {
+            iteration: 4,
+            ..Default::default()
+        })
+        .unwrap();
+        log.eval_episodes(
+            4,
+            true,
+            &[EvalEpisode {
+                n_modes: 1,
+                mode_rewards: vec![1.0],
+                ..Default::default()
+            }],
+        )
+        .unwrap();
+        log.finish().unwrap();
+
+        let back = read(&path).unwrap();
+        assert_eq!(back.truncated, None);
+        let got: Vec<Record> = back.messages().cloned().collect();
+        let mut want: Vec<Record> = written[..1].to_vec();
+        for it in 1..=3 {
+            want.push(chunk(it));
+            want.push(metrics_of(it, None));
+            if it == 2 {
+                want.extend(episode_of(0, 2, false));
+            }
+        }
+        want.push(Record::Metrics(pb::IterationMetrics::from(&IterationLog {
+            iteration: 4,
+            ..Default::default()
+        })));
+        assert_eq!(got[..want.len()], want[..]);
+        // The new final evaluation continues the episode numbering after the kept one.
+        match &got[want.len()] {
+            Record::EvalEpisode(e) => assert_eq!((e.episode, e.final_eval), (1, true)),
+            other => panic!("expected an episode, got {other:?}"),
+        }
+        assert_eq!(got.len(), want.len() + 2);
+        assert!(!dir.path().join("run.mcap.reopen").exists());
+    }
+
+    #[test]
+    fn a_file_that_is_not_mcap_is_refused_with_its_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("notes.mcap");
+        std::fs::write(&path, "iteration,env_steps\n1,100\n").unwrap();
+        let e = read(&path).unwrap_err();
+        assert!(matches!(e, RunLogError::NotMcap { .. }), "{e}");
+        assert!(e.to_string().contains("notes.mcap"), "{e}");
+        let missing = dir.path().join("missing.mcap");
+        let e = read(&missing).unwrap_err().to_string();
+        assert!(e.contains("missing.mcap"), "{e}");
+    }
+
+    #[test]
+    fn a_known_topic_with_a_foreign_schema_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("foreign.mcap");
+        let mut w = mcap::Writer::new(BufWriter::new(File::create(&path).unwrap())).unwrap();
+        let schema = w.add_schema("foo.Bar", "jsonschema", b"{}").unwrap();
+        let ch = w
+            .add_channel(schema, METRICS_TOPIC, "json", &BTreeMap::new())
+            .unwrap();
+        w.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: 0,
+                log_time: 0,
+                publish_time: 0,
+            },
+            b"{}",
+        )
+        .unwrap();
+        w.finish().unwrap();
+        drop(w);
+        let e = read(&path).unwrap_err();
+        assert!(matches!(e, RunLogError::WrongSchema { .. }), "{e}");
+        let e = e.to_string();
+        assert!(e.contains("foreign.mcap") && e.contains("foo.Bar"), "{e}");
+    }
+
+    #[test]
+    fn channels_embed_the_protobuf_descriptor_set_as_schema() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let mut log = RunLog::open_writer(&path, opts()).unwrap();
+        log.iteration(&IterationLog::default()).unwrap();
+        log.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let summary = mcap::Summary::read(&bytes)
+            .unwrap()
+            .expect("a summary section");
+        assert!(!summary.chunk_indexes.is_empty());
+        assert_eq!(
+            summary.chunk_indexes[0].compression, "zstd",
+            "chunks are zstd-compressed"
+        );
+        let topics: Vec<(&str, &str)> = summary
+            .channels
+            .values()
+            .map(|c| {
+                let s = c.schema.as_ref().expect("schema");
+                assert_eq!(
+                    (s.encoding.as_str(), c.message_encoding.as_str()),
+                    ("protobuf", "protobuf")
+                );
+                assert_eq!(&s.data[..], FILE_DESCRIPTOR_SET);
+                (c.topic.as_str(), s.name.as_str())
+            })
+            .collect();
+        for t in TOPICS {
+            assert!(topics.contains(&t), "{t:?} missing from {topics:?}");
+        }
+        // The schema names resolve in the embedded descriptor set.
+        let fds = prost_types_names(FILE_DESCRIPTOR_SET);
+        for (_, name) in TOPICS {
+            assert!(fds.contains(&name.to_string()), "{name} not in {fds:?}");
+        }
+    }
+
+    /// Full names of the messages of an encoded `FileDescriptorSet`, decoded by hand
+    /// (field 1: file; in a file, field 2: package, field 4: message_type; in a
+    /// message, field 1: name).
+    fn prost_types_names(fds: &[u8]) -> Vec<String> {
+        #[derive(Clone, PartialEq, prost::Message)]
+        struct Fds {
+            #[prost(message, repeated, tag = "1")]
+            file: Vec<Fdp>,
+        }
+        #[derive(Clone, PartialEq, prost::Message)]
+        struct Fdp {
+            #[prost(string, optional, tag = "2")]
+            package: Option<String>,
+            #[prost(message, repeated, tag = "4")]
+            message_type: Vec<Dp>,
+        }
+        #[derive(Clone, PartialEq, prost::Message)]
+        struct Dp {
+            #[prost(string, optional, tag = "1")]
+            name: Option<String>,
+        }
+        let set = Fds::decode(fds).unwrap();
+        set.file
+            .iter()
+            .flat_map(|f| {
+                f.message_type.iter().map(move |m| {
+                    format!(
+                        "{}.{}",
+                        f.package.clone().unwrap_or_default(),
+                        m.name.clone().unwrap_or_default()
+                    )
+                })
+            })
+            .collect()
+    }
 }
