@@ -63,6 +63,14 @@ pub enum EnvError {
     /// `step` (or the expert) was called before the first `reset`.
     #[error("the environment was used before reset was called")]
     NotReset,
+    /// [`Env::set_state`] got a state vector that does not fit this env.
+    #[error("state for env `{env}` is invalid: {why}")]
+    BadState {
+        /// The env's name.
+        env: String,
+        /// What does not fit (length, a non-finite value, ...).
+        why: String,
+    },
     /// `step` was called after the episode had terminated or been truncated.
     #[error("step called after the episode ended (after {steps} steps); call reset first")]
     StepAfterDone {
@@ -177,6 +185,16 @@ pub trait Env: Send {
     fn forward_velocity(&self) -> Option<f64> {
         None
     }
+
+    /// The env's complete state as a flat vector: the simulator state and every field
+    /// the next `step`, `mode_rewards` and `task_rewards` read (episode step count, done
+    /// flag, last action, ...). [`Env::set_state`] with it makes the env continue
+    /// bit-identically. Used by checkpoints (mid-episode workers) and `ess replay`.
+    fn state(&self) -> Vec<f64>;
+
+    /// Restores a vector from [`Env::state`] of an env built with the same name and
+    /// parameters; [`EnvError::BadState`] when its length or contents do not fit.
+    fn set_state(&mut self, state: &[f64]) -> Result<(), EnvError>;
 }
 
 /// An env whose behaviour modes have a scripted (stochastic) expert.
@@ -316,7 +334,14 @@ mod tests {
     use rand::SeedableRng;
 
     /// Every (name, n_modes) built through `make_env` that the suite runs against.
-    const ALL_ENVS: &[(&str, usize)] = &[("traj2d", 4), ("reacher", 2), ("reacher", 6)];
+    const ALL_ENVS: &[(&str, usize)] = &[
+        ("traj2d", 4),
+        ("reacher", 2),
+        ("reacher", 6),
+        ("pusher", 6),
+        ("walker2d", 3),
+        ("humanoid", 3),
+    ];
 
     #[test]
     fn every_make_env_env_passes_the_conformance_suite() {
@@ -467,5 +492,101 @@ mod tests {
         let err = make_plain_env("cartpole", 2).err().expect("unknown env");
         assert!(matches!(err, EnvError::UnknownEnv { .. }), "{err}");
         assert!(err.to_string().contains("pusher"), "{err}");
+    }
+}
+
+/// Builds the flat vector of [`Env::state`]: scalars, counters and flags in a fixed order.
+#[derive(Debug, Default)]
+pub(crate) struct StateWriter(Vec<f64>);
+
+impl StateWriter {
+    /// Appends values.
+    pub fn put(&mut self, values: &[f64]) -> &mut Self {
+        self.0.extend_from_slice(values);
+        self
+    }
+
+    /// Appends a counter (exact below 2^53).
+    pub fn count(&mut self, n: usize) -> &mut Self {
+        self.0.push(n as f64);
+        self
+    }
+
+    /// Appends a flag as 0 or 1.
+    pub fn flag(&mut self, b: bool) -> &mut Self {
+        self.0.push(f64::from(u8::from(b)));
+        self
+    }
+
+    /// The vector.
+    pub fn finish(&mut self) -> Vec<f64> {
+        std::mem::take(&mut self.0)
+    }
+}
+
+/// Reads a vector written by [`StateWriter`] in the same order; every misfit is
+/// [`EnvError::BadState`] naming the env.
+#[derive(Debug)]
+pub(crate) struct StateReader<'a> {
+    env: &'a str,
+    data: &'a [f64],
+    at: usize,
+}
+
+impl<'a> StateReader<'a> {
+    /// Checks that `data` has exactly `len` values, all finite.
+    pub fn new(env: &'a str, data: &'a [f64], len: usize) -> Result<Self, EnvError> {
+        let bad = |why: String| EnvError::BadState {
+            env: env.to_owned(),
+            why,
+        };
+        if data.len() != len {
+            return Err(bad(format!("has {} values, expected {len}", data.len())));
+        }
+        if let Some(i) = data.iter().position(|x| !x.is_finite()) {
+            return Err(bad(format!("value {i} is {} (not finite)", data[i])));
+        }
+        Ok(Self { env, data, at: 0 })
+    }
+
+    fn bad(&self, why: String) -> EnvError {
+        EnvError::BadState {
+            env: self.env.to_owned(),
+            why,
+        }
+    }
+
+    /// The next `n` values.
+    pub fn take(&mut self, n: usize) -> &'a [f64] {
+        let s = &self.data[self.at..self.at + n];
+        self.at += n;
+        s
+    }
+
+    /// The next value.
+    pub fn scalar(&mut self) -> f64 {
+        self.take(1)[0]
+    }
+
+    /// The next counter: a whole number in `0..=max`.
+    pub fn count(&mut self, what: &str, max: usize) -> Result<usize, EnvError> {
+        let at = self.at;
+        let x = self.scalar();
+        if x < 0.0 || x.fract() != 0.0 || x > max as f64 {
+            return Err(self.bad(format!(
+                "value {at} ({what}) is {x}, expected a whole number in 0..={max}"
+            )));
+        }
+        Ok(x as usize)
+    }
+
+    /// The next flag (0 or 1).
+    pub fn flag(&mut self, what: &str) -> Result<bool, EnvError> {
+        let at = self.at;
+        match self.scalar() {
+            0.0 => Ok(false),
+            1.0 => Ok(true),
+            x => Err(self.bad(format!("value {at} ({what}) is {x}, expected 0 or 1"))),
+        }
     }
 }

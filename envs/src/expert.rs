@@ -494,6 +494,35 @@ impl Env for ExpertEnv {
     fn forward_velocity(&self) -> Option<f64> {
         self.env.forward_velocity()
     }
+
+    /// The wrapped env's state, then the last observation (what the experts act on).
+    fn state(&self) -> Vec<f64> {
+        let mut s = self.env.state();
+        s.extend(self.obs.iter().map(|&x| f64::from(x)));
+        s
+    }
+
+    fn set_state(&mut self, state: &[f64]) -> Result<(), EnvError> {
+        let n = self.obs.len();
+        let Some(split) = state.len().checked_sub(n) else {
+            return Err(EnvError::BadState {
+                env: self.env.spec().name.clone(),
+                why: format!("has {} values, fewer than obs_dim = {n}", state.len()),
+            });
+        };
+        let (inner, obs) = state.split_at(split);
+        if let Some(i) = obs.iter().position(|x| !x.is_finite()) {
+            return Err(EnvError::BadState {
+                env: self.env.spec().name.clone(),
+                why: format!("observation value {i} is {} (not finite)", obs[i]),
+            });
+        }
+        self.env.set_state(inner)?;
+        for (o, &x) in self.obs.iter_mut().zip(obs) {
+            *o = x as f32;
+        }
+        Ok(())
+    }
 }
 
 impl ScriptedExpert for ExpertEnv {

@@ -39,7 +39,7 @@ use std::fmt;
 use mujoco_rs::prelude::{MjtJoint, MjtObjBase};
 use serde::{Deserialize, Serialize};
 
-use crate::env::{Env, EnvError, EnvSpec, StepOutcome, check_obs_len};
+use crate::env::{Env, EnvError, EnvSpec, StateReader, StateWriter, StepOutcome, check_obs_len};
 use crate::locomotion::{
     LocoMode, ModelShape, N_MODES, RewardTerms, RewardWeights, Sim, check_non_negative,
     check_positive, check_range, in_open_range, put,
@@ -249,6 +249,9 @@ pub struct Humanoid {
     mass_fraction: Vec<f64>,
     /// Reward terms of the last step (the start state's before the first).
     terms: RewardTerms,
+    /// Centre-of-mass x from the body positions `mj_step` left (see
+    /// [`Humanoid::center_of_mass_x`]); kept so a restored state steps identically.
+    com_x: f64,
 }
 
 crate::locomotion::loco_env_common!(Humanoid);
@@ -327,6 +330,7 @@ impl Humanoid {
             weights,
             mass_fraction,
             terms: RewardTerms::default(),
+            com_x: 0.0,
         })
     }
 
@@ -348,6 +352,11 @@ impl Humanoid {
     /// x-coordinate of the centre of mass, from the body positions `mj_step` left
     /// (v5's `mass_center`), in metres.
     pub fn center_of_mass_x(&self) -> f64 {
+        self.com_x
+    }
+
+    /// [`Humanoid::center_of_mass_x`] computed from the current body positions.
+    fn com_from_bodies(&self) -> f64 {
         self.sim
             .data
             .xipos()
@@ -414,6 +423,7 @@ impl Env for Humanoid {
         self.sim.reset(seed, self.cfg.reset_noise_scale);
         // v5 fills cfrc_ext after every step; do it for the start state too.
         self.sim.data.rne_post_constraint();
+        self.com_x = self.com_from_bodies();
         self.terms = RewardTerms {
             healthy: self.is_healthy(),
             ..RewardTerms::default()
@@ -424,14 +434,15 @@ impl Env for Humanoid {
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<StepOutcome, EnvError> {
         self.sim.check_step(action, obs, self.spec.obs_dim)?;
-        let com_before = self.center_of_mass_x();
+        let com_before = self.com_x;
         let ctrl_sq = self.sim.advance(action)?;
         // mj_step leaves cfrc_ext unset unless a sensor needs it; v5 computes it here.
         self.sim.data.rne_post_constraint();
+        self.com_x = self.com_from_bodies();
         let healthy = self.is_healthy();
         self.terms = RewardTerms {
             healthy,
-            x_velocity: (self.center_of_mass_x() - com_before) / self.sim.dt(),
+            x_velocity: (self.com_x - com_before) / self.sim.dt(),
             ctrl_cost: self.cfg.ctrl_cost_weight * ctrl_sq,
             contact_cost: self.contact_cost_now(),
         };
@@ -445,6 +456,24 @@ impl Env for Humanoid {
 
     fn forward_velocity(&self) -> Option<f64> {
         Some(self.terms.x_velocity)
+    }
+
+    /// `[MuJoCo integration state, steps, started, done, last step's reward terms,
+    /// centre-of-mass x]`.
+    fn state(&self) -> Vec<f64> {
+        let mut w = StateWriter::default();
+        self.sim.save_state(&mut w);
+        self.terms.save(&mut w);
+        w.put(&[self.com_x]).finish()
+    }
+
+    fn set_state(&mut self, state: &[f64]) -> Result<(), EnvError> {
+        let len = self.sim.state_len() + RewardTerms::STATE_LEN + 1;
+        let mut r = StateReader::new(&self.spec.name, state, len)?;
+        self.sim.load_state(&mut r, &self.spec.name)?;
+        self.terms = RewardTerms::load(&mut r)?;
+        self.com_x = r.scalar();
+        Ok(())
     }
 }
 

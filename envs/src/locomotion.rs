@@ -30,7 +30,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::env::{EnvError, check_action, check_can_step, check_obs_len};
+use crate::env::{EnvError, StateReader, StateWriter, check_action, check_can_step, check_obs_len};
 use crate::mujoco::{self, model_error};
 
 /// Number of behaviour modes of every locomotion env.
@@ -114,6 +114,25 @@ impl RewardTerms {
         healthy + w.forward_weight * mode.velocity(self.x_velocity)
             - self.ctrl_cost
             - self.contact_cost
+    }
+
+    /// Number of values [`RewardTerms::save`] writes.
+    pub(crate) const STATE_LEN: usize = 4;
+
+    /// Appends the terms to `w`.
+    pub(crate) fn save(&self, w: &mut StateWriter) {
+        w.flag(self.healthy)
+            .put(&[self.x_velocity, self.ctrl_cost, self.contact_cost]);
+    }
+
+    /// Reads terms written by [`RewardTerms::save`].
+    pub(crate) fn load(r: &mut StateReader<'_>) -> Result<Self, EnvError> {
+        Ok(Self {
+            healthy: r.flag("healthy")?,
+            x_velocity: r.scalar(),
+            ctrl_cost: r.scalar(),
+            contact_cost: r.scalar(),
+        })
     }
 
     /// Writes the reward of every mode into `out` (a shorter `out` gets the first modes).
@@ -340,6 +359,38 @@ impl Sim {
             terminated,
             truncated,
         }
+    }
+
+    /// Length of [`Sim::save_state`]'s output.
+    pub fn state_len(&self) -> usize {
+        mujoco::physics_state_len(&self.data) + 3
+    }
+
+    /// Appends the physics state, step count and episode flags to `w`.
+    pub(crate) fn save_state(&self, w: &mut StateWriter) {
+        let mut physics = Vec::new();
+        mujoco::physics_state(&self.data, &mut physics);
+        w.put(&physics)
+            .count(self.steps)
+            .flag(self.started)
+            .flag(self.done);
+    }
+
+    /// Restores what [`Sim::save_state`] wrote, read from `r`.
+    pub(crate) fn load_state(
+        &mut self,
+        r: &mut StateReader<'_>,
+        env: &str,
+    ) -> Result<(), EnvError> {
+        let physics = r.take(mujoco::physics_state_len(&self.data));
+        let steps = r.count("steps", self.max_steps)?;
+        let started = r.flag("started")?;
+        let done = r.flag("done")?;
+        mujoco::set_physics_state(&mut self.data, physics, env)?;
+        self.steps = steps;
+        self.started = started;
+        self.done = done;
+        Ok(())
     }
 
     /// MuJoCo warning counters, by warning type, since the last reset.

@@ -9,6 +9,33 @@ use crate::env::EnvError;
 /// The MuJoCo state an env owns, with its model.
 pub(crate) type Data = MjData<Box<MjModel>>;
 
+/// The part of MuJoCo's state that [`crate::Env::state`] saves: everything
+/// `mj_step` reads (`mjSTATE_INTEGRATION`: time, qpos, qvel, act, warm start, controls,
+/// applied forces, mocap, ...), so a restored env steps bit-identically.
+const STATE_SPEC: u32 = mujoco_rs::prelude::MjtState::mjSTATE_INTEGRATION as u32;
+
+/// Length of [`physics_state`]'s output for `data`'s model.
+pub(crate) fn physics_state_len(data: &Data) -> usize {
+    data.model().state_size(STATE_SPEC)
+}
+
+/// Appends `data`'s integration state to `out`.
+pub(crate) fn physics_state(data: &Data, out: &mut Vec<f64>) {
+    out.extend_from_slice(&data.state(STATE_SPEC));
+}
+
+/// Restores an integration state from [`physics_state`] (length already checked by the
+/// caller) and recomputes positions (`mj_kinematics`), as the envs' `step` leaves them.
+pub(crate) fn set_physics_state(data: &mut Data, state: &[f64], env: &str) -> Result<(), EnvError> {
+    data.set_state(state, STATE_SPEC)
+        .map_err(|e| EnvError::BadState {
+            env: env.to_owned(),
+            why: e.to_string(),
+        })?;
+    data.forward_kinematics();
+    Ok(())
+}
+
 /// [`EnvError::Model`] with `reason`.
 pub(crate) fn model_error(reason: impl Into<String>) -> EnvError {
     EnvError::Model {

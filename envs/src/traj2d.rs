@@ -41,8 +41,8 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_can_step,
-    check_obs_len,
+    Env, EnvError, EnvSpec, ScriptedExpert, StateReader, StateWriter, StepOutcome, check_action,
+    check_can_step, check_obs_len,
 };
 
 /// Number of positions in an observation.
@@ -311,6 +311,37 @@ impl Env for Traj2D {
         for (r, circle) in out.iter_mut().zip(&self.circles) {
             *r = -(self.radial_error(circle).abs() as f32);
         }
+    }
+
+    /// `[pos (2), heading, history (2 x HISTORY), steps, started, done]`.
+    fn state(&self) -> Vec<f64> {
+        StateWriter::default()
+            .put(&self.pos)
+            .put(&[self.heading])
+            .put(self.history.as_flattened())
+            .count(self.steps)
+            .flag(self.started)
+            .flag(self.done)
+            .finish()
+    }
+
+    fn set_state(&mut self, state: &[f64]) -> Result<(), EnvError> {
+        let mut r = StateReader::new(&self.spec.name, state, 3 + 2 * HISTORY + 3)?;
+        let pos = [r.scalar(), r.scalar()];
+        let heading = r.scalar();
+        let hist = r.take(2 * HISTORY);
+        let steps = r.count("steps", self.spec.max_steps)?;
+        let started = r.flag("started")?;
+        let done = r.flag("done")?;
+        self.pos = pos;
+        self.heading = heading;
+        for (h, xy) in self.history.iter_mut().zip(hist.chunks_exact(2)) {
+            *h = [xy[0], xy[1]];
+        }
+        self.steps = steps;
+        self.started = started;
+        self.done = done;
+        Ok(())
     }
 }
 

@@ -29,7 +29,7 @@ use std::fmt;
 
 use serde::{Deserialize, Serialize};
 
-use crate::env::{Env, EnvError, EnvSpec, StepOutcome, check_obs_len};
+use crate::env::{Env, EnvError, EnvSpec, StateReader, StateWriter, StepOutcome, check_obs_len};
 use crate::locomotion::{
     LocoMode, ModelShape, N_MODES, RewardTerms, RewardWeights, Sim, check_non_negative,
     check_positive, check_range, in_open_range, put,
@@ -301,6 +301,22 @@ impl Env for Walker2d {
 
     fn forward_velocity(&self) -> Option<f64> {
         Some(self.terms.x_velocity)
+    }
+
+    /// `[MuJoCo integration state, steps, started, done, last step's reward terms]`.
+    fn state(&self) -> Vec<f64> {
+        let mut w = StateWriter::default();
+        self.sim.save_state(&mut w);
+        self.terms.save(&mut w);
+        w.finish()
+    }
+
+    fn set_state(&mut self, state: &[f64]) -> Result<(), EnvError> {
+        let len = self.sim.state_len() + RewardTerms::STATE_LEN;
+        let mut r = StateReader::new(&self.spec.name, state, len)?;
+        self.sim.load_state(&mut r, &self.spec.name)?;
+        self.terms = RewardTerms::load(&mut r)?;
+        Ok(())
     }
 }
 

@@ -129,6 +129,14 @@ struct TrainArgs {
     /// run.actors=N, run.transport="processes"); 0 keeps the in-process threads.
     #[arg(long, value_name = "N")]
     actors: Option<usize>,
+    /// Continue the run in DIR from its latest checkpoint, with the configuration it
+    /// was started with (DIR/config.toml); bit-identical to a run never stopped.
+    #[arg(
+        long,
+        value_name = "DIR",
+        conflicts_with_all = ["preset", "config", "env", "seed", "set", "out", "actors", "print_config"]
+    )]
+    resume: Option<PathBuf>,
     /// How progress is reported: `human` (a bar or lines on stderr, a summary on
     /// stdout) or `jsonl` (one JSON object per line on stdout: messages, every
     /// iteration's metrics, the final result; what `ess serve` reads).
@@ -353,7 +361,21 @@ fn train(mut args: TrainArgs) -> Result<()> {
         }
         None => {}
     }
-    let cfg = resolve(&args.config)?;
+    let cfg = match &args.resume {
+        Some(dir) => ess_learner::train::run_config(dir)
+            .map_err(|e| input_err(format!("--resume: {e:#}")))?,
+        None => resolve(&args.config)?,
+    };
+    if let Some(dir) = &args.resume
+        && ess_learner::checkpoint::latest(&dir.join("checkpoints"))
+            .map_err(input_err)?
+            .is_none()
+    {
+        return Err(input_err(format!(
+            "--resume: no complete checkpoint under {}",
+            dir.join("checkpoints").display()
+        )));
+    }
     if args.print_config {
         print!("{}", cfg.to_toml());
         return Ok(());
@@ -361,7 +383,7 @@ fn train(mut args: TrainArgs) -> Result<()> {
     if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
         ess_learner::actors::actor_binary().map_err(input_err)?;
     }
-    let out = args.out.unwrap_or_else(|| {
+    let out = args.resume.clone().or(args.out).unwrap_or_else(|| {
         PathBuf::from(format!(
             "runs/{}-{}-s{}",
             cfg.method.name, cfg.env.name, cfg.run.seed
@@ -369,7 +391,12 @@ fn train(mut args: TrainArgs) -> Result<()> {
     });
     let shutdown = ctrl_c_flag()?;
     eprintln!(
-        "ess: training {} on {} (seed {}, {} iterations x {} steps) -> {}",
+        "ess: {} {} on {} (seed {}, {} iterations x {} steps) -> {}",
+        if args.resume.is_some() {
+            "resuming"
+        } else {
+            "training"
+        },
         cfg.method.name,
         cfg.env.name,
         cfg.run.seed,
@@ -379,12 +406,18 @@ fn train(mut args: TrainArgs) -> Result<()> {
     );
     if args.progress == ProgressFormat::Jsonl {
         let mut progress = JsonlProgress::new(std::io::stdout().lock());
-        let result = run(&cfg, &out, &mut progress, &shutdown)?;
+        let result = match args.resume {
+            Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown)?,
+            None => run(&cfg, &out, &mut progress, &shutdown)?,
+        };
         progress.emit(&ProgressEvent::Summary((&result.summary).into()));
         return Ok(());
     }
     let mut progress = CliProgress::new(cfg.run.iterations);
-    let result = run(&cfg, &out, &mut progress, &shutdown)?;
+    let result = match args.resume {
+        Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown)?,
+        None => run(&cfg, &out, &mut progress, &shutdown)?,
+    };
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }

@@ -44,6 +44,8 @@ pub(crate) fn check_env(name: &str, build: Build) {
     stepping_after_the_episode_ended_is_an_error(name, build);
     stepping_before_reset_is_an_error(name, build);
     wrong_buffer_lengths_and_non_finite_actions_are_errors(name, build);
+    a_restored_state_continues_bit_identically(name, build);
+    states_that_do_not_fit_are_errors(name, build);
 }
 
 fn same_seed_gives_the_same_trajectory(name: &str, build: Build) {
@@ -153,6 +155,112 @@ fn wrong_buffer_lengths_and_non_finite_actions_are_errors(name: &str, build: Bui
     // Failed steps do not consume the episode.
     env.step(&vec![0.0; spec.act_dim], &mut obs)
         .expect("valid step");
+}
+
+/// Steps `env` with random actions from `rng` until it is done or `limit` steps were
+/// taken; returns every observation, outcome, per-mode eval and task reward and forward
+/// velocity, for bitwise comparison.
+fn trace(env: &mut dyn Env, rng: &mut ChaCha8Rng, limit: usize) -> Vec<String> {
+    let spec = env.spec().clone();
+    let mut obs = vec![0.0; spec.obs_dim];
+    let mut act = vec![0.0f32; spec.act_dim];
+    let mut r = vec![0.0; spec.n_modes];
+    let mut t = vec![0.0; spec.n_modes];
+    let mut out = Vec::new();
+    for _ in 0..limit {
+        for a in &mut act {
+            *a = rng.random_range(-1.0..=1.0);
+        }
+        let o = env.step(&act, &mut obs).expect("step");
+        env.mode_rewards(&mut r);
+        env.task_rewards(&mut t);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        out.push(format!(
+            "{:?} {:?} {:?} {:?} {:?}",
+            bits(&obs),
+            o,
+            bits(&r),
+            bits(&t),
+            env.forward_velocity().map(f64::to_bits)
+        ));
+        if o.done() {
+            break;
+        }
+    }
+    out
+}
+
+fn a_restored_state_continues_bit_identically(name: &str, build: Build) {
+    let mut a = build();
+    let spec = a.spec().clone();
+    let mut obs = vec![0.0; spec.obs_dim];
+    a.reset(5, &mut obs).expect("reset");
+    let mut rng = ChaCha8Rng::seed_from_u64(55);
+    let head = trace(a.as_mut(), &mut rng, 7);
+    assert!(!head.is_empty(), "{name}");
+    let saved = a.state();
+    assert!(
+        saved.iter().all(|x| x.is_finite()),
+        "{name}: non-finite state"
+    );
+    // Into an env mid-way through another episode, and into one never reset.
+    let mut b = build();
+    b.reset(99, &mut obs).expect("reset");
+    trace(b.as_mut(), &mut ChaCha8Rng::seed_from_u64(1), 3);
+    b.set_state(&saved).expect("set_state");
+    let mut c = build();
+    c.set_state(&saved).expect("set_state on a fresh env");
+    for (label, env) in [("mid-episode env", &b), ("fresh env", &c)] {
+        assert_eq!(
+            env.state(),
+            saved,
+            "{name}: {label}: state() after set_state"
+        );
+        let (mut ra, mut re) = (vec![0.0; spec.n_modes], vec![0.0; spec.n_modes]);
+        a.mode_rewards(&mut ra);
+        env.mode_rewards(&mut re);
+        assert_eq!(ra, re, "{name}: {label}: rewards of the restored last step");
+    }
+    let tail_a = trace(a.as_mut(), &mut rng.clone(), spec.max_steps);
+    let tail_b = trace(b.as_mut(), &mut rng.clone(), spec.max_steps);
+    let tail_c = trace(c.as_mut(), &mut rng, spec.max_steps);
+    assert_eq!(tail_a, tail_b, "{name}: restored mid-episode env diverged");
+    assert_eq!(tail_a, tail_c, "{name}: restored fresh env diverged");
+    // A finished episode's state restores as finished.
+    let mut d = build();
+    d.set_state(&a.state()).expect("set_state");
+    let err = d.step(&vec![0.0; spec.act_dim], &mut obs).unwrap_err();
+    assert!(
+        matches!(err, EnvError::StepAfterDone { .. }),
+        "{name}: {err}"
+    );
+}
+
+fn states_that_do_not_fit_are_errors(name: &str, build: Build) {
+    let mut env = build();
+    let spec = env.spec().clone();
+    let mut obs = vec![0.0; spec.obs_dim];
+    env.reset(3, &mut obs).expect("reset");
+    let good = env.state();
+    let mut longer = good.clone();
+    longer.push(0.0);
+    let mut nan = good.clone();
+    nan[0] = f64::NAN;
+    for (what, bad) in [
+        ("short", &good[..good.len() - 1]),
+        ("long", &longer[..]),
+        ("NaN", &nan[..]),
+        ("empty", &[][..]),
+    ] {
+        let err = build().set_state(bad).unwrap_err();
+        assert!(
+            matches!(&err, EnvError::BadState { env, .. } if *env == spec.name),
+            "{name}: {what}: {err}"
+        );
+    }
+    // A refused state leaves the env as it was.
+    let _ = env.set_state(&nan);
+    assert_eq!(env.state(), good, "{name}: a refused state changed the env");
 }
 
 /// A bad-config case: the field, and how it spoils the default config.
