@@ -12,12 +12,16 @@
 //!   task reward).
 //! - [`presets`]: the method presets, embedded in the binary.
 //! - [`plot`], [`report`]: PNG figures.
+//! - [`progress`]: `ess train --progress jsonl`, the machine-readable progress stream.
+//! - [`jobs`], [`serve`], [`client`]: the control plane (`ess serve`, `ess job ...`).
 
 pub mod actors;
 pub mod checkpoint;
 pub mod classifier;
+pub mod client;
 pub mod eval;
 pub mod experts;
+pub mod jobs;
 pub mod metrics;
 pub mod nets;
 pub mod objective;
@@ -25,6 +29,8 @@ pub mod optim;
 pub mod plot;
 pub mod ppo;
 pub mod presets;
+pub mod progress;
 pub mod report;
+pub mod serve;
 pub mod table;
 pub mod train;
