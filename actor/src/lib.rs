@@ -13,5 +13,5 @@ pub mod transport;
 
 pub use ess_proto::Mlp;
 pub use policy::{Actor, LatentSpec, PolicyWeights, gumbel_softmax};
-pub use rollout::{ActorError, EvalEpisode, Worker, eval_episode};
+pub use rollout::{ActorError, EvalEpisode, Worker, WorkerState, eval_episode};
 pub use transport::{EvalJob, EvalRunner, LocalEval, RolloutSource, ThreadedActors, split_steps};

@@ -87,6 +87,31 @@ pub fn check_fit(env: &dyn Env, w: &PolicyWeights, latent: &LatentSpec) -> Resul
     Ok(())
 }
 
+/// Everything a [`Worker`] carries from one step to the next: restored into a worker
+/// over an env of the same kind ([`Worker::restore`]), it continues bit-identically,
+/// mid-episode included.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorkerState {
+    /// Seed of the ChaCha8 stream.
+    pub rng_seed: [u8; 32],
+    /// Stream number of the ChaCha8 generator.
+    pub rng_stream: u64,
+    /// Word position of the ChaCha8 generator.
+    pub rng_word_pos: u128,
+    /// Observation the next step acts on.
+    pub obs: Vec<f32>,
+    /// Latent code of the current episode.
+    pub code: Vec<f32>,
+    /// Gumbel noise the code was drawn with.
+    pub gumbel: Vec<f32>,
+    /// Latent noise eps of the current episode.
+    pub eps: f32,
+    /// Whether an episode is under way (else the next step resets).
+    pub in_episode: bool,
+    /// [`Env::state`].
+    pub env: Vec<f64>,
+}
+
 /// One environment with its episode state and random stream.
 pub struct Worker {
     env: Box<dyn Env>,
@@ -139,6 +164,57 @@ impl Worker {
     /// The environment.
     pub fn env(&self) -> &dyn Env {
         self.env.as_ref()
+    }
+
+    /// The worker's complete state between two steps.
+    pub fn snapshot(&self) -> WorkerState {
+        WorkerState {
+            rng_seed: self.rng.get_seed(),
+            rng_stream: self.rng.get_stream(),
+            rng_word_pos: self.rng.get_word_pos(),
+            obs: self.obs.clone(),
+            code: self.code.clone(),
+            gumbel: self.gumbel.clone(),
+            eps: self.eps,
+            in_episode: self.in_episode,
+            env: self.env.state(),
+        }
+    }
+
+    /// Continues from `s` (a [`Worker::snapshot`] of a worker over the same kind of env
+    /// with as many codes). A state that does not fit changes nothing.
+    pub fn restore(&mut self, s: &WorkerState) -> Result<(), ActorError> {
+        let spec = self.env.spec();
+        let mismatch = |what: String| ActorError::Mismatch {
+            env: spec.name.clone(),
+            what,
+        };
+        if s.obs.len() != self.obs.len() {
+            return Err(mismatch(format!(
+                "worker state has {} observation values, the env {}",
+                s.obs.len(),
+                self.obs.len()
+            )));
+        }
+        if s.code.len() != self.code.len() || s.gumbel.len() != self.gumbel.len() {
+            return Err(mismatch(format!(
+                "worker state has {} code / {} gumbel values for {} codes",
+                s.code.len(),
+                s.gumbel.len(),
+                self.code.len()
+            )));
+        }
+        self.env.set_state(&s.env)?;
+        let mut rng = ChaCha8Rng::from_seed(s.rng_seed);
+        rng.set_stream(s.rng_stream);
+        rng.set_word_pos(s.rng_word_pos);
+        self.rng = rng;
+        self.obs.copy_from_slice(&s.obs);
+        self.code.copy_from_slice(&s.code);
+        self.gumbel.copy_from_slice(&s.gumbel);
+        self.eps = s.eps;
+        self.in_episode = s.in_episode;
+        Ok(())
     }
 
     /// Steps `n` times under `w`, starting new episodes (and drawing new latents) as needed.

@@ -7,7 +7,7 @@
 //! with the same per-actor seeds both produce the same chunks.
 
 use crate::policy::{LatentSpec, PolicyWeights};
-use crate::rollout::{ActorError, EvalEpisode, Worker, eval_episode};
+use crate::rollout::{ActorError, EvalEpisode, Worker, WorkerState, eval_episode};
 use ess_envs::Env;
 use ess_proto::Chunk;
 use std::sync::Arc;
@@ -31,6 +31,13 @@ pub trait RolloutSource: Send {
     fn evaluator(&mut self) -> Option<&mut dyn EvalRunner> {
         None
     }
+
+    /// Every actor's complete state between two rollouts, in actor order (checkpoints).
+    fn snapshot(&mut self) -> Result<Vec<WorkerState>, ActorError>;
+
+    /// Restores one [`RolloutSource::snapshot`] state per actor, so that the next
+    /// rollouts continue those the snapshot was taken between.
+    fn restore(&mut self, states: &[WorkerState]) -> Result<(), ActorError>;
 }
 
 /// One evaluation episode to run: deterministic policy with one-hot code `code`, latent
@@ -80,11 +87,21 @@ pub fn split_steps(steps: usize, n: usize) -> Vec<usize> {
         .collect()
 }
 
-type Job = (Arc<PolicyWeights>, usize);
+enum Job {
+    Collect(Arc<PolicyWeights>, usize),
+    Snapshot,
+    Restore(Box<WorkerState>),
+}
+
+enum Reply {
+    Chunk(Box<Result<Chunk, ActorError>>),
+    State(Box<WorkerState>),
+    Restored(Result<(), ActorError>),
+}
 
 struct Handle {
     jobs: Sender<Job>,
-    results: Receiver<Result<Chunk, ActorError>>,
+    results: Receiver<Reply>,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -105,8 +122,15 @@ impl ThreadedActors {
                 let thread = std::thread::Builder::new()
                     .name(format!("ess-actor-{i}"))
                     .spawn(move || {
-                        while let Ok((weights, n)) = jrx.recv() {
-                            if rtx.send(w.collect(&weights, &latent, n)).is_err() {
+                        while let Ok(job) = jrx.recv() {
+                            let reply = match job {
+                                Job::Collect(weights, n) => {
+                                    Reply::Chunk(Box::new(w.collect(&weights, &latent, n)))
+                                }
+                                Job::Snapshot => Reply::State(Box::new(w.snapshot())),
+                                Job::Restore(s) => Reply::Restored(w.restore(&s)),
+                            };
+                            if rtx.send(reply).is_err() {
                                 break;
                             }
                         }
@@ -121,6 +145,28 @@ impl ThreadedActors {
             .collect();
         Self { handles }
     }
+
+    /// Sends one job per actor and collects the replies in actor order.
+    fn round(&self, jobs: impl Iterator<Item = Job>) -> Result<Vec<Reply>, ActorError> {
+        let gone = |index: usize, why: &str| ActorError::WorkerGone {
+            index,
+            why: why.into(),
+        };
+        for (i, (h, job)) in self.handles.iter().zip(jobs).enumerate() {
+            h.jobs
+                .send(job)
+                .map_err(|_| gone(i, "job channel closed"))?;
+        }
+        self.handles
+            .iter()
+            .enumerate()
+            .map(|(i, h)| {
+                h.results
+                    .recv()
+                    .map_err(|_| gone(i, "result channel closed"))
+            })
+            .collect()
+    }
 }
 
 impl RolloutSource for ThreadedActors {
@@ -134,24 +180,55 @@ impl RolloutSource for ThreadedActors {
         steps: usize,
     ) -> Result<Vec<Chunk>, ActorError> {
         let split = split_steps(steps, self.handles.len());
-        for (i, (h, &n)) in self.handles.iter().zip(&split).enumerate() {
-            h.jobs
-                .send((weights.clone(), n))
-                .map_err(|_| ActorError::WorkerGone {
-                    index: i,
-                    why: "job channel closed".into(),
-                })?;
-        }
-        self.handles
-            .iter()
+        self.round(split.iter().map(|&n| Job::Collect(weights.clone(), n)))?
+            .into_iter()
             .enumerate()
-            .map(|(i, h)| {
-                h.results.recv().map_err(|_| ActorError::WorkerGone {
-                    index: i,
-                    why: "result channel closed".into(),
-                })?
+            .map(|(i, r)| match r {
+                Reply::Chunk(c) => *c,
+                _ => Err(unexpected(i)),
             })
             .collect()
+    }
+
+    fn snapshot(&mut self) -> Result<Vec<WorkerState>, ActorError> {
+        self.round(self.handles.iter().map(|_| Job::Snapshot))?
+            .into_iter()
+            .enumerate()
+            .map(|(i, r)| match r {
+                Reply::State(s) => Ok(*s),
+                _ => Err(unexpected(i)),
+            })
+            .collect()
+    }
+
+    fn restore(&mut self, states: &[WorkerState]) -> Result<(), ActorError> {
+        if states.len() != self.handles.len() {
+            return Err(ActorError::Transport {
+                what: format!(
+                    "{} actor states for {} actors",
+                    states.len(),
+                    self.handles.len()
+                ),
+            });
+        }
+        for (i, r) in self
+            .round(states.iter().map(|s| Job::Restore(Box::new(s.clone()))))?
+            .into_iter()
+            .enumerate()
+        {
+            match r {
+                Reply::Restored(r) => r?,
+                _ => return Err(unexpected(i)),
+            }
+        }
+        Ok(())
+    }
+}
+
+fn unexpected(index: usize) -> ActorError {
+    ActorError::WorkerGone {
+        index,
+        why: "answered another request".into(),
     }
 }
 

@@ -15,6 +15,10 @@
 //! actor the next job, gather the episodes at their job's index, restart a dead or silent
 //! actor and ask it again for the job it held.
 //!
+//! Checkpoints: [`RolloutSource::snapshot`] and [`RolloutSource::restore`] are refused
+//! (no transport message carries an actor's state yet), so a resumed run with actor
+//! processes starts fresh episodes and is not bit-identical to an uninterrupted one.
+//!
 //! Children run in their own process group (a terminal Ctrl-C reaches only the learner,
 //! which finishes its iteration and then stops them), and exit by themselves when the
 //! learner dies. Dropping [`ShmActors`] sends a stop request, waits briefly, kills what is
@@ -603,6 +607,21 @@ impl RolloutSource for ShmActors {
 
     fn evaluator(&mut self) -> Option<&mut dyn EvalRunner> {
         Some(self)
+    }
+
+    /// Not available: an actor process's state would have to cross the transport,
+    /// which has no message for it yet. Checkpoints of such runs hold no actor states.
+    fn snapshot(&mut self) -> Result<Vec<ess_actor::WorkerState>, ActorError> {
+        Err(transport(
+            "actor processes cannot hand their state to a checkpoint".into(),
+        ))
+    }
+
+    /// Not available (see [`ShmActors::snapshot`]).
+    fn restore(&mut self, _: &[ess_actor::WorkerState]) -> Result<(), ActorError> {
+        Err(transport(
+            "actor processes cannot be restored from a checkpoint".into(),
+        ))
     }
 }
 

@@ -9,9 +9,10 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use ess_envs::generate_demos;
 use ess_learner::experts::{ExpertTrainConfig, eval_experts, train_expert};
-use ess_learner::presets::{self, PRESETS, preset};
+use ess_learner::presets::{ConfigLayers, PRESETS};
+use ess_learner::progress::{JsonlProgress, ProgressEvent};
 use ess_learner::train::{IterationLog, Progress, demo_spec, run};
-use ess_proto::config::{CheckedConfig, ConfigBuilder};
+use ess_proto::config::CheckedConfig;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -44,6 +45,10 @@ enum Cmd {
     },
     /// List the method presets.
     Presets,
+    /// Run the job server: a gRPC daemon that owns training jobs on this machine.
+    Serve(ServeArgs),
+    /// Talk to a job server: submit, list, get, watch, stop, resume jobs.
+    Job(JobArgs),
     /// Table 1 view of finished runs: a row per run, mean ± std per env and method
     /// beside the paper's value (Markdown).
     Report {
@@ -147,6 +152,104 @@ struct TrainArgs {
     /// run.actors=N, run.transport="processes"); 0 keeps the in-process threads.
     #[arg(long, value_name = "N")]
     actors: Option<usize>,
+    /// Continue the run in DIR from its latest checkpoint, with the configuration it
+    /// was started with (DIR/config.toml); bit-identical to a run never stopped.
+    #[arg(
+        long,
+        value_name = "DIR",
+        conflicts_with_all = ["preset", "config", "env", "seed", "set", "out", "actors", "print_config"]
+    )]
+    resume: Option<PathBuf>,
+    /// How progress is reported: `human` (a bar or lines on stderr, a summary on
+    /// stdout) or `jsonl` (one JSON object per line on stdout: messages, every
+    /// iteration's metrics, the final result; what `ess serve` reads).
+    #[arg(long, value_enum, default_value = "human")]
+    progress: ProgressFormat,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ProgressFormat {
+    Human,
+    Jsonl,
+}
+
+#[derive(Args)]
+struct ServeArgs {
+    /// Address to listen on (IP:PORT; port 0 picks a free one). The bound address is
+    /// printed as the first line of stdout. A non-loopback address needs --token-file.
+    #[arg(long, default_value = ess_learner::serve::DEFAULT_LISTEN)]
+    listen: String,
+    /// File holding the bearer token every JobService call must carry
+    /// (`authorization: Bearer <token>`). Without it, calls are not authenticated.
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// Data directory: one `jobs/<id>/` per job (record, config, log, run outputs).
+    #[arg(long, default_value = "ess-jobs")]
+    data_dir: PathBuf,
+    /// Cores running jobs may hold together (default: the machine's). A job holds
+    /// max(run.actors, run.torch_threads, 1) of them; the rest queue.
+    #[arg(long)]
+    cores: Option<usize>,
+    /// Seconds a shutting-down server waits for its stopped jobs before killing them.
+    #[arg(long, default_value_t = 600.0)]
+    stop_grace_s: f64,
+}
+
+#[derive(Args)]
+struct JobArgs {
+    /// Server URL (default: $ESS_SERVER, else http://127.0.0.1:50551).
+    #[arg(long, global = true)]
+    server: Option<String>,
+    /// File holding the server's bearer token (default: $ESS_TOKEN_FILE, if set).
+    #[arg(long, global = true)]
+    token_file: Option<PathBuf>,
+    /// Print JSON (one object per line for `watch`) instead of text.
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    cmd: JobCmd,
+}
+
+#[derive(Subcommand)]
+enum JobCmd {
+    /// Validate and queue a job (the config flags of `ess train`).
+    Submit {
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// Then watch it until it ends.
+        #[arg(long)]
+        watch: bool,
+    },
+    /// List jobs (oldest first).
+    List {
+        /// Only jobs in this state (repeatable): queued, running, stopping, stopped,
+        /// succeeded, failed.
+        #[arg(long)]
+        state: Vec<String>,
+    },
+    /// Show one job.
+    Get {
+        /// Job id.
+        id: String,
+    },
+    /// Print a job's iterations as they finish, then its result; exits 1 if it failed.
+    Watch {
+        /// Job id.
+        id: String,
+    },
+    /// Stop a job gracefully (it checkpoints and ends STOPPED).
+    Stop {
+        /// Job id.
+        id: String,
+    },
+    /// Continue a STOPPED or FAILED job from its last checkpoint.
+    Resume {
+        /// Job id.
+        id: String,
+        /// Then watch it until it ends.
+        #[arg(long)]
+        watch: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -180,57 +283,31 @@ fn input_err(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::Error::new(InputError(e.to_string()))
 }
 
-fn resolve(args: &ConfigArgs) -> Result<CheckedConfig> {
-    // First pass: learn which env the layers select; second pass: put that env's
-    // defaults (mode count, label ratio) under the preset, the file and `--set`.
-    let first = resolve_with(args, None)?;
-    let cfg = match presets::env_defaults(&first.env.name) {
-        Some(layer) => resolve_with(args, Some((&first.env.name, layer)))?,
-        None => first,
-    };
-    ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
-    Ok(cfg)
+impl ConfigArgs {
+    /// The layers these flags name (reading the config file).
+    fn layers(&self) -> Result<ConfigLayers> {
+        let config = self
+            .config
+            .as_ref()
+            .map(|f| {
+                std::fs::read_to_string(f)
+                    .map(|text| (f.display().to_string(), text))
+                    .map_err(|e| input_err(format!("cannot read config file {}: {e}", f.display())))
+            })
+            .transpose()?;
+        Ok(ConfigLayers {
+            preset: self.preset.clone(),
+            preset_files: true,
+            config,
+            set: self.set.clone(),
+            env: self.env.clone(),
+            seed: self.seed,
+        })
+    }
 }
 
-fn resolve_with(args: &ConfigArgs, env_layer: Option<(&str, &str)>) -> Result<CheckedConfig> {
-    let mut b = ConfigBuilder::new();
-    let env_layer = env_layer
-        .map(|(env, text)| presets::parse_env_layer(env, text))
-        .transpose()
-        .map_err(input_err)?;
-    if let Some(layer) = &env_layer {
-        b.merge_env_layer(layer).map_err(input_err)?;
-    }
-    let (name, text) = if args.preset.ends_with(".toml") || args.preset.contains('/') {
-        let text = std::fs::read_to_string(&args.preset)
-            .map_err(|e| input_err(format!("cannot read preset file {}: {e}", args.preset)))?;
-        (args.preset.clone(), text)
-    } else {
-        (
-            format!("preset {}", args.preset),
-            preset(&args.preset).map_err(input_err)?.to_string(),
-        )
-    };
-    b.merge_toml(&name, &text).map_err(input_err)?;
-    if let Some(layer) = &env_layer {
-        b.merge_env_method_layer(layer).map_err(input_err)?;
-    }
-    if let Some(f) = &args.config {
-        let text = std::fs::read_to_string(f)
-            .map_err(|e| input_err(format!("cannot read config file {}: {e}", f.display())))?;
-        b.merge_toml(&f.display().to_string(), &text)
-            .map_err(input_err)?;
-    }
-    for s in &args.set {
-        b.set(s).map_err(input_err)?;
-    }
-    if let Some(env) = &args.env {
-        b.set(&format!("env.name=\"{env}\"")).map_err(input_err)?;
-    }
-    if let Some(seed) = args.seed {
-        b.set(&format!("run.seed={seed}")).map_err(input_err)?;
-    }
-    b.build().map_err(input_err)
+fn resolve(args: &ConfigArgs) -> Result<CheckedConfig> {
+    args.layers()?.resolve().map_err(input_err)
 }
 
 struct CliProgress {
@@ -307,7 +384,21 @@ fn train(mut args: TrainArgs) -> Result<()> {
         }
         None => {}
     }
-    let cfg = resolve(&args.config)?;
+    let cfg = match &args.resume {
+        Some(dir) => ess_learner::train::run_config(dir)
+            .map_err(|e| input_err(format!("--resume: {e:#}")))?,
+        None => resolve(&args.config)?,
+    };
+    if let Some(dir) = &args.resume
+        && ess_learner::checkpoint::latest(&dir.join("checkpoints"))
+            .map_err(input_err)?
+            .is_none()
+    {
+        return Err(input_err(format!(
+            "--resume: no complete checkpoint under {}",
+            dir.join("checkpoints").display()
+        )));
+    }
     if args.print_config {
         print!("{}", cfg.to_toml());
         return Ok(());
@@ -315,7 +406,7 @@ fn train(mut args: TrainArgs) -> Result<()> {
     if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
         ess_learner::actors::actor_binary().map_err(input_err)?;
     }
-    let out = args.out.unwrap_or_else(|| {
+    let out = args.resume.clone().or(args.out).unwrap_or_else(|| {
         PathBuf::from(format!(
             "runs/{}-{}-s{}",
             cfg.method.name, cfg.env.name, cfg.run.seed
@@ -323,7 +414,12 @@ fn train(mut args: TrainArgs) -> Result<()> {
     });
     let shutdown = ctrl_c_flag()?;
     eprintln!(
-        "ess: training {} on {} (seed {}, {} iterations x {} steps) -> {}",
+        "ess: {} {} on {} (seed {}, {} iterations x {} steps) -> {}",
+        if args.resume.is_some() {
+            "resuming"
+        } else {
+            "training"
+        },
         cfg.method.name,
         cfg.env.name,
         cfg.run.seed,
@@ -331,8 +427,20 @@ fn train(mut args: TrainArgs) -> Result<()> {
         cfg.run.rollout_steps,
         out.display()
     );
+    if args.progress == ProgressFormat::Jsonl {
+        let mut progress = JsonlProgress::new(std::io::stdout().lock());
+        let result = match args.resume {
+            Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown)?,
+            None => run(&cfg, &out, &mut progress, &shutdown)?,
+        };
+        progress.emit(&ProgressEvent::Summary((&result.summary).into()));
+        return Ok(());
+    }
     let mut progress = CliProgress::new(cfg.run.iterations);
-    let result = run(&cfg, &out, &mut progress, &shutdown)?;
+    let result = match args.resume {
+        Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown)?,
+        None => run(&cfg, &out, &mut progress, &shutdown)?,
+    };
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }
@@ -664,6 +772,319 @@ fn replay(a: ReplayArgs) -> Result<()> {
     Ok(())
 }
 
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")
+}
+
+/// Resolves on the first Ctrl-C or SIGTERM.
+async fn shutdown_signal() {
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(e) => {
+                tracing::warn!(error = %e, "cannot listen for SIGTERM");
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    tokio::select! {
+        r = tokio::signal::ctrl_c() => {
+            if let Err(e) = r {
+                tracing::warn!(error = %e, "cannot listen for Ctrl-C");
+                std::future::pending::<()>().await;
+            }
+        }
+        () = term => {}
+    }
+    eprintln!("ess serve: stopping running jobs (they checkpoint), then exiting");
+}
+
+async fn serve(a: ServeArgs) -> Result<()> {
+    use ess_learner::jobs::ManagerConfig;
+    use ess_learner::serve::ServeConfig;
+    let addr: std::net::SocketAddr = a.listen.parse().map_err(|e| {
+        input_err(format!(
+            "--listen `{}`: expected IP:PORT (e.g. 127.0.0.1:50551): {e}",
+            a.listen
+        ))
+    })?;
+    let token = a
+        .token_file
+        .as_deref()
+        .map(ess_learner::client::read_token_file)
+        .transpose()
+        .map_err(input_err)?;
+    if !addr.ip().is_loopback() {
+        if token.is_none() {
+            return Err(input_err(format!(
+                "--listen {addr} is reachable from other machines: give --token-file so that only token holders control jobs"
+            )));
+        }
+        eprintln!(
+            "ess serve: WARNING: listening on {addr} without TLS: the token and job data cross the network in plain text"
+        );
+    }
+    let cores = match a.cores {
+        Some(0) => return Err(input_err("--cores must be at least 1")),
+        Some(n) => n,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    if !(a.stop_grace_s.is_finite() && a.stop_grace_s >= 0.0) {
+        return Err(input_err(format!(
+            "--stop-grace-s {} must be a number of seconds >= 0",
+            a.stop_grace_s
+        )));
+    }
+    let exe = std::env::current_exe().context("locating the ess binary to run jobs with")?;
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("cannot listen on {addr}"))?;
+    let bound = listener.local_addr().context("reading the bound address")?;
+    {
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "listening on {bound}")?;
+        out.flush()?;
+    }
+    eprintln!(
+        "ess serve: {} cores for jobs, data in {}, {}",
+        cores,
+        a.data_dir.display(),
+        if token.is_some() {
+            "bearer token required"
+        } else {
+            "no token (loopback only)"
+        }
+    );
+    let cfg = ServeConfig {
+        manager: ManagerConfig {
+            data_dir: a.data_dir,
+            cores,
+            exe,
+            stop_grace: std::time::Duration::from_secs_f64(a.stop_grace_s),
+        },
+        token,
+    };
+    ess_learner::serve::serve(listener, cfg, shutdown_signal()).await
+}
+
+/// A failed call as an error: the caller's fault (exit 2) or the server's (exit 1).
+fn status_err(s: tonic::Status) -> anyhow::Error {
+    use tonic::Code;
+    let msg = format!("{:?}: {}", s.code(), s.message());
+    match s.code() {
+        Code::InvalidArgument
+        | Code::NotFound
+        | Code::FailedPrecondition
+        | Code::Unauthenticated
+        | Code::PermissionDenied => input_err(msg),
+        _ => anyhow::anyhow!(msg),
+    }
+}
+
+fn parse_state(s: &str) -> Result<ess_proto::pb::JobState> {
+    use ess_proto::pb::JobState;
+    Ok(match s.to_ascii_lowercase().as_str() {
+        "queued" => JobState::Queued,
+        "running" => JobState::Running,
+        "stopping" => JobState::Stopping,
+        "stopped" => JobState::Stopped,
+        "succeeded" => JobState::Succeeded,
+        "failed" => JobState::Failed,
+        _ => {
+            return Err(input_err(format!(
+                "--state `{s}`: expected queued, running, stopping, stopped, succeeded or failed"
+            )));
+        }
+    })
+}
+
+async fn job(a: JobArgs) -> Result<()> {
+    use ess_learner::client::{self, event_json, job_detail, job_json, job_line};
+    use ess_proto::pb;
+    let server = a
+        .server
+        .or_else(|| std::env::var("ESS_SERVER").ok())
+        .unwrap_or_else(|| format!("http://{}", ess_learner::serve::DEFAULT_LISTEN));
+    let token_file = a
+        .token_file
+        .or_else(|| std::env::var_os("ESS_TOKEN_FILE").map(PathBuf::from));
+    let token = token_file
+        .as_deref()
+        .map(client::read_token_file)
+        .transpose()
+        .map_err(input_err)?;
+    let json = a.json;
+    let print_job = |j: &pb::Job| {
+        if json {
+            println!("{}", job_json(j));
+        } else {
+            print!("{}", job_detail(j));
+        }
+    };
+    // Validate local input before connecting.
+    let spec = match &a.cmd {
+        JobCmd::Submit { config, .. } => Some(job_spec(config)?),
+        _ => None,
+    };
+    let mut c = client::connect(&server, token.as_deref()).await?;
+    let watch_id = match a.cmd {
+        JobCmd::Submit { watch, .. } => {
+            let j = c
+                .submit_job(pb::SubmitJobRequest { spec })
+                .await
+                .map_err(status_err)?
+                .into_inner();
+            if !watch || !json {
+                print_job(&j);
+            }
+            watch.then_some(j.id)
+        }
+        JobCmd::List { state } => {
+            let states = state
+                .iter()
+                .map(|s| parse_state(s).map(i32::from))
+                .collect::<Result<Vec<_>>>()?;
+            let jobs = c
+                .list_jobs(pb::ListJobsRequest { states })
+                .await
+                .map_err(status_err)?
+                .into_inner()
+                .jobs;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::Value::Array(jobs.iter().map(job_json).collect())
+                );
+            } else if jobs.is_empty() {
+                println!("no jobs");
+            } else {
+                for j in &jobs {
+                    println!("{}", job_line(j));
+                }
+            }
+            None
+        }
+        JobCmd::Get { id } => {
+            let j = c
+                .get_job(pb::GetJobRequest { id })
+                .await
+                .map_err(status_err)?
+                .into_inner();
+            print_job(&j);
+            None
+        }
+        JobCmd::Stop { id } => {
+            let j = c
+                .stop_job(pb::StopJobRequest { id })
+                .await
+                .map_err(status_err)?
+                .into_inner();
+            print_job(&j);
+            None
+        }
+        JobCmd::Resume { id, watch } => {
+            let j = c
+                .resume_job(pb::ResumeJobRequest { id })
+                .await
+                .map_err(status_err)?
+                .into_inner();
+            if !watch || !json {
+                print_job(&j);
+            }
+            watch.then_some(j.id)
+        }
+        JobCmd::Watch { id } => Some(id),
+    };
+    let Some(id) = watch_id else {
+        return Ok(());
+    };
+    let mut stream = c
+        .watch_job(pb::WatchJobRequest { id: id.clone() })
+        .await
+        .map_err(status_err)?
+        .into_inner();
+    let mut last: Option<pb::Job> = None;
+    while let Some(ev) = stream.message().await.map_err(status_err)? {
+        if json {
+            println!("{}", event_json(&ev));
+        } else if let Some(m) = &ev.metrics {
+            let total = ev.job.as_ref().map_or(0, |j| j.iterations);
+            println!("{}", client::iteration_line(m, total));
+        } else if let Some(j) = &ev.job {
+            let changed = last
+                .as_ref()
+                .is_none_or(|l| l.state != j.state || l.phase != j.phase);
+            if changed {
+                let phase = if j.phase.is_empty() {
+                    String::new()
+                } else {
+                    format!(" ({})", j.phase)
+                };
+                println!("{} {}{phase}", j.id, client::state_name(j.state));
+            }
+        }
+        if let Some(j) = ev.job {
+            last = Some(j);
+        }
+    }
+    let Some(j) = last else {
+        anyhow::bail!("the server ended the watch of {id} without an event");
+    };
+    if !json {
+        print!("{}", job_detail(&j));
+    }
+    match pb::JobState::try_from(j.state) {
+        Ok(pb::JobState::Failed) => Err(anyhow::anyhow!("job {} failed: {}", j.id, j.error)),
+        Ok(pb::JobState::Stopped | pb::JobState::Succeeded) => Ok(()),
+        _ => Err(anyhow::anyhow!(
+            "the watch of {} ended while the job is {}",
+            j.id,
+            client::state_name(j.state)
+        )),
+    }
+}
+
+/// The job spec the config flags describe (the config file's contents travel).
+fn job_spec(c: &ConfigArgs) -> Result<ess_proto::pb::JobSpec> {
+    use ess_proto::pb;
+    if c.preset.ends_with(".toml") || c.preset.contains('/') {
+        return Err(input_err(format!(
+            "--preset {}: a job takes a preset name (`ess presets`); pass a file with --config",
+            c.preset
+        )));
+    }
+    let config_toml = match &c.config {
+        Some(f) => std::fs::read_to_string(f)
+            .map_err(|e| input_err(format!("cannot read config file {}: {e}", f.display())))?,
+        None => String::new(),
+    };
+    let overrides = c
+        .set
+        .iter()
+        .map(|s| {
+            s.split_once('=')
+                .map(|(k, v)| pb::Override {
+                    key: k.trim().to_string(),
+                    value: v.trim().to_string(),
+                })
+                .ok_or_else(|| input_err(format!("--set `{s}`: expected KEY=VALUE")))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(pb::JobSpec {
+        preset: c.preset.clone(),
+        env: c.env.clone().unwrap_or_default(),
+        seed: c.seed,
+        overrides,
+        config_toml,
+    })
+}
+
 fn main() {
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
@@ -678,6 +1099,8 @@ fn main() {
         Cmd::Demos { cmd } => demos(cmd),
         Cmd::Experts { cmd } => experts(cmd),
         Cmd::Replay(a) => replay(a),
+        Cmd::Serve(a) => runtime().and_then(|rt| rt.block_on(serve(a))),
+        Cmd::Job(a) => runtime().and_then(|rt| rt.block_on(job(a))),
         Cmd::Report { runs } => runs
             .iter()
             .map(|d| ess_learner::table::read_run(d).map_err(input_err))

@@ -8,11 +8,12 @@
 //! skill distribution").
 
 use crate::nets::{Mlp, Policy, tensor_2d};
+use crate::optim::Adam;
 use ess_proto::Chunk;
 use ess_proto::config::{LatentPrior, PpoConfig};
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use tch::{Kind, Tensor, nn, nn::Module, nn::OptimizerConfig};
+use tch::{Kind, Tensor, nn, nn::Module};
 
 /// Generalised advantage estimation over one actor's consecutive steps.
 ///
@@ -49,7 +50,7 @@ pub fn gae(
 /// Scales rewards by the running standard deviation of the discounted return, per
 /// actor stream (each stream's return carries across iterations until its episode
 /// ends). Rewards are scaled, never shifted, so the sign of every term is kept.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 pub struct RewardScaler {
     /// Running discounted return of each stream.
     ret: Vec<f64>,
@@ -215,9 +216,9 @@ pub struct PpoLearner {
     /// Logits of p(c) `[K]`.
     pub prior_logits: Tensor,
     /// Optimiser of policy and value.
-    pub opt: nn::Optimizer,
+    pub opt: Adam,
     /// Optimiser of the p(c) logits (stepped only with the Gumbel prior).
-    pub prior_opt: nn::Optimizer,
+    pub prior_opt: Adam,
     cfg: PpoConfig,
     prior: LatentPrior,
     tau: f64,
@@ -243,8 +244,8 @@ impl PpoLearner {
         vsizes.push(1);
         let value = Mlp::new(&root / "v", &vsizes, false, 1.0);
         let prior_logits = prior_vs.root().zeros("prior_logits", &[n_codes as i64]);
-        let opt = nn::Adam::default().build(vs, cfg.lr)?;
-        let prior_opt = nn::Adam::default().build(prior_vs, cfg.prior_lr.max(1e-12))?;
+        let opt = Adam::new(vs, cfg.lr)?;
+        let prior_opt = Adam::new(prior_vs, cfg.prior_lr.max(1e-12))?;
         Ok(Self {
             policy,
             value,

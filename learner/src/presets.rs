@@ -1,5 +1,9 @@
 //! Method presets (`deploy/presets/*.toml`), embedded so the binary works from anywhere.
 //! A preset only selects the latent prior and the objective terms' weights.
+//! [`ConfigLayers::resolve`] layers presets, env defaults, a config file and overrides
+//! into a checked configuration, for `ess train` and for `ess serve`'s job specs alike.
+
+use ess_proto::config::ConfigError;
 
 /// `(name, toml)` of every preset, in the paper's Table 1 order.
 pub const PRESETS: &[(&str, &str)] = &[
@@ -135,6 +139,230 @@ pub fn paper_table1(env: &str, method: &str) -> Option<(f64, f64)> {
         _ => return None,
     };
     Some(row[col])
+}
+
+/// The layers a configuration is resolved from: the flags of `ess train` or a job spec
+/// of `ess serve`. Precedence, lowest first: built-in defaults < the env's defaults layer
+/// < preset < the env layer's `[per_method.<preset>]` table < `config` < `set` (in order)
+/// < `env` < `seed`.
+#[derive(Debug, Clone, Default)]
+pub struct ConfigLayers {
+    /// Preset name (see [`PRESETS`]), or with `preset_files` a path to a preset TOML file
+    /// (a name ending in `.toml` or holding a `/`). Empty: `ess-infogail`.
+    pub preset: String,
+    /// Whether `preset` may name a file (the CLI); a job spec only takes names.
+    pub preset_files: bool,
+    /// `(source name, TOML text)` of a config file applied over the preset.
+    pub config: Option<(String, String)>,
+    /// `key=value` overrides, applied in order.
+    pub set: Vec<String>,
+    /// Environment name (overrides `env.name`).
+    pub env: Option<String>,
+    /// Training seed (overrides `run.seed`).
+    pub seed: Option<u64>,
+}
+
+/// Which of a [`ConfigLayers`]' layers an error is blamed on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layer {
+    /// The preset (its name, its file, or a value it sets).
+    Preset,
+    /// The env's built-in defaults layer.
+    EnvDefaults,
+    /// The config file.
+    Config,
+    /// The override at this index of [`ConfigLayers::set`].
+    Set(usize),
+    /// [`ConfigLayers::env`] (or the env named by the layers, when none set it).
+    Env,
+    /// [`ConfigLayers::seed`].
+    Seed,
+}
+
+/// A configuration that cannot be resolved: the message (naming the key, value, file),
+/// the layer it is blamed on, and whether the override's key (rather than its value) is
+/// the problem.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{message}")]
+pub struct ResolveError {
+    /// What is wrong, naming the key, value or file.
+    pub message: String,
+    /// The layer that brought the bad key or value.
+    pub layer: Layer,
+    /// True when the key itself is bad (unknown, or not `key=value`); false when its
+    /// value is.
+    pub bad_key: bool,
+}
+
+impl ConfigLayers {
+    /// The checked configuration, resolved exactly as `ess train` does: a first pass
+    /// learns which env the layers select, a second puts that env's defaults layer under
+    /// them; the env must be constructible.
+    pub fn resolve(&self) -> Result<ess_proto::CheckedConfig, ResolveError> {
+        let first = self.resolve_with(None)?;
+        let cfg = match env_defaults(&first.env.name) {
+            Some(layer) => self.resolve_with(Some((&first.env.name, layer)))?,
+            None => first,
+        };
+        if let Err(e) = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes) {
+            let key = match &e {
+                ess_envs::EnvError::BadParam { field, .. } if field.contains("mode") => {
+                    "env.n_modes"
+                }
+                _ => "env.name",
+            };
+            return Err(self.blame_key(key, e.to_string()));
+        }
+        Ok(cfg)
+    }
+
+    fn preset_name(&self) -> &str {
+        if self.preset.is_empty() {
+            "ess-infogail"
+        } else {
+            &self.preset
+        }
+    }
+
+    fn resolve_with(
+        &self,
+        env_layer: Option<(&str, &str)>,
+    ) -> Result<ess_proto::CheckedConfig, ResolveError> {
+        let err = |layer: Layer, e: &dyn std::fmt::Display| ResolveError {
+            message: e.to_string(),
+            layer,
+            bad_key: false,
+        };
+        let mut b = ess_proto::config::ConfigBuilder::new();
+        let env_layer = env_layer
+            .map(|(env, text)| parse_env_layer(env, text))
+            .transpose()
+            .map_err(|e| err(Layer::EnvDefaults, &e))?;
+        if let Some(layer) = &env_layer {
+            b.merge_env_layer(layer)
+                .map_err(|e| err(Layer::EnvDefaults, &e))?;
+        }
+        let name = self.preset_name();
+        let (source, text) = if self.preset_files && (name.ends_with(".toml") || name.contains('/'))
+        {
+            let text = std::fs::read_to_string(name).map_err(|e| {
+                err(
+                    Layer::Preset,
+                    &format!("cannot read preset file {name}: {e}"),
+                )
+            })?;
+            (name.to_string(), text)
+        } else {
+            let text = preset(name).map_err(|e| err(Layer::Preset, &e))?;
+            (format!("preset {name}"), text.to_string())
+        };
+        b.merge_toml(&source, &text)
+            .map_err(|e| err(Layer::Preset, &e))?;
+        if let Some(layer) = &env_layer {
+            b.merge_env_method_layer(layer)
+                .map_err(|e| err(Layer::EnvDefaults, &e))?;
+        }
+        if let Some((source, text)) = &self.config {
+            b.merge_toml(source, text)
+                .map_err(|e| err(Layer::Config, &e))?;
+        }
+        for (i, s) in self.set.iter().enumerate() {
+            b.set(s).map_err(|e| ResolveError {
+                bad_key: matches!(
+                    e,
+                    ConfigError::UnknownKey { .. } | ConfigError::BadOverride { .. }
+                ),
+                message: e.to_string(),
+                layer: Layer::Set(i),
+            })?;
+        }
+        if let Some(env) = &self.env {
+            b.set(&format!("env.name={}", toml::Value::from(env.as_str())))
+                .map_err(|e| err(Layer::Env, &e))?;
+        }
+        if let Some(seed) = self.seed {
+            b.set(&format!("run.seed={seed}"))
+                .map_err(|e| err(Layer::Seed, &e))?;
+        }
+        b.build().map_err(|e| match &e {
+            ConfigError::OutOfRange { key, .. }
+            | ConfigError::UnknownKey { key, .. }
+            | ConfigError::WrongType { key, .. } => self.blame_key(key, e.to_string()),
+            _ => self.blame_message(e.to_string()),
+        })
+    }
+
+    /// Blames the layer with the highest precedence that sets `key`.
+    pub fn blame_key(&self, key: &str, message: String) -> ResolveError {
+        let layer = if key == "run.seed" && self.seed.is_some() {
+            Layer::Seed
+        } else if key == "env.name" && self.env.is_some() {
+            Layer::Env
+        } else if let Some(i) = self
+            .set
+            .iter()
+            .rposition(|s| s.split_once('=').is_some_and(|(k, _)| k.trim() == key))
+        {
+            Layer::Set(i)
+        } else if self
+            .config
+            .as_ref()
+            .is_some_and(|(_, text)| toml_sets(text, key))
+        {
+            Layer::Config
+        } else if key == "env.name" {
+            Layer::Env
+        } else {
+            Layer::Preset
+        };
+        ResolveError {
+            message,
+            layer,
+            bad_key: false,
+        }
+    }
+
+    /// Blames a message without a key (a value serde rejected) on the last override
+    /// whose value it quotes, else on the config file, else on the preset.
+    fn blame_message(&self, message: String) -> ResolveError {
+        let quoted = |v: &str| {
+            let v = v.trim().trim_matches('"');
+            !v.is_empty() && message.contains(&format!("`{v}`"))
+        };
+        let layer = if let Some(i) = self
+            .set
+            .iter()
+            .rposition(|s| s.split_once('=').is_some_and(|(_, v)| quoted(v)))
+        {
+            Layer::Set(i)
+        } else if self.config.is_some() {
+            Layer::Config
+        } else {
+            Layer::Preset
+        };
+        ResolveError {
+            message,
+            layer,
+            bad_key: false,
+        }
+    }
+}
+
+/// Whether TOML `text` sets the dotted `key`.
+fn toml_sets(text: &str, key: &str) -> bool {
+    let Ok(table) = text.parse::<toml::Table>() else {
+        return false;
+    };
+    let mut cur = &table;
+    let parts: Vec<&str> = key.split('.').collect();
+    for (i, p) in parts.iter().enumerate() {
+        match cur.get(*p) {
+            Some(toml::Value::Table(t)) if i + 1 < parts.len() => cur = t,
+            Some(_) if i + 1 == parts.len() => return true,
+            _ => return false,
+        }
+    }
+    false
 }
 
 #[cfg(test)]

@@ -214,40 +214,10 @@ pub fn config_record(cfg: &CheckedConfig) -> pb::RunConfig {
     }
 }
 
-/// The one mapping of a metrics row into its protobuf message (`/metrics`).
-impl From<&IterationLog> for pb::IterationMetrics {
-    fn from(l: &IterationLog) -> Self {
-        Self {
-            iteration: l.iteration as u32,
-            env_steps: l.env_steps as u64,
-            wall_s: l.wall_s,
-            rollout_s: l.rollout_s,
-            disc_s: l.disc_s,
-            ppo_s: l.ppo_s,
-            disc_bce: l.disc_bce,
-            d_acc_expert: l.d_acc_expert,
-            d_acc_policy: l.d_acc_policy,
-            qc_labeled: l.qc_labeled,
-            qc_generated: l.qc_generated,
-            qeps: l.qeps,
-            rim_entropy: l.rim_entropy,
-            rim_kl: l.rim_kl,
-            contrastive: l.contrastive,
-            reward_mean: l.reward_mean,
-            policy_loss: l.policy_loss,
-            value_loss: l.value_loss,
-            entropy: l.entropy,
-            approx_kl: l.approx_kl,
-            prior: l
-                .prior
-                .split(';')
-                .filter_map(|p| p.trim().parse::<f32>().ok())
-                .collect(),
-            nmi: l.nmi,
-            ent: l.ent,
-            normalized_reward: l.normalized_reward,
-        }
-    }
+/// A metrics row as its protobuf message (`/metrics`), through the one mapping the
+/// progress stream and `WatchJob` use ([`crate::progress::IterationRecord`]).
+pub fn metrics_message(log: &IterationLog) -> pb::IterationMetrics {
+    crate::progress::IterationRecord::from(log).into()
 }
 
 type McapWriter = mcap::Writer<BufWriter<File>>;
@@ -451,7 +421,7 @@ impl RunLog {
 
     /// Logs one iteration's metrics on `/metrics` and flushes.
     pub fn iteration(&mut self, log: &IterationLog) -> Result<(), RunLogError> {
-        self.record(&Record::Metrics(log.into()))?;
+        self.record(&Record::Metrics(metrics_message(log)))?;
         self.flush()
     }
 
@@ -994,7 +964,7 @@ mod tests {
             nmi: Some(0.9),
             ..Default::default()
         };
-        let m = pb::IterationMetrics::from(&l);
+        let m = metrics_message(&l);
         assert_eq!((m.iteration, m.env_steps), (7, 700));
         assert_eq!((m.wall_s, m.disc_bce, m.rim_kl), (1.5, 0.6, 0.01));
         assert_eq!(m.prior, vec![0.25, 0.75]);
@@ -1089,7 +1059,7 @@ mod tests {
                 want.extend(episode_of(0, 2, false));
             }
         }
-        want.push(Record::Metrics(pb::IterationMetrics::from(&IterationLog {
+        want.push(Record::Metrics(metrics_message(&IterationLog {
             iteration: 4,
             ..Default::default()
         })));

@@ -27,13 +27,13 @@ use ess_proto::config::LatentPrior;
 use ess_proto::{CheckedConfig, Chunk};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use tch::{Kind, Tensor, nn, nn::OptimizerConfig};
+use tch::{Kind, Tensor, nn};
 
 /// What a caller sees of progress (the CLI draws a bar or prints lines).
 pub trait Progress {
@@ -47,7 +47,7 @@ pub trait Progress {
 /// carries the final evaluation's `nmi`, `ent` and `normalized_reward` (the periodic
 /// evaluation is skipped there); a run stopped before its first iteration writes a
 /// single row of iteration 0 with the final evaluation of the untrained policy.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct IterationLog {
     /// Iteration index (1-based).
     pub iteration: usize,
@@ -191,7 +191,7 @@ fn encoder_accuracy(disc: &Discriminator, x: &Tensor, mode: &Tensor, k: usize) -
 }
 
 /// Per-phase seconds.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct PhaseSeconds {
     /// Rollout.
     pub rollout: f64,
@@ -333,20 +333,84 @@ fn evaluate_on(
 }
 
 /// Trains with `cfg`, writing into `out`; stops early (and still writes everything)
-/// when `shutdown` is set.
+/// when `shutdown` is set: the current iteration finishes, a checkpoint is saved, the
+/// final evaluation runs and `summary.json` says `"interrupted": true`.
 pub fn run(
     cfg: &CheckedConfig,
     out: &Path,
     progress: &mut dyn Progress,
     shutdown: &AtomicBool,
 ) -> Result<RunOutput> {
+    run_from(cfg, out, progress, shutdown, false)
+}
+
+/// The configuration a run in `out` was started with (its `config.toml`).
+pub fn run_config(out: &Path) -> Result<CheckedConfig> {
+    let p = out.join("config.toml");
+    let text = std::fs::read_to_string(&p).with_context(|| {
+        format!(
+            "reading {} (is {} the output directory of an `ess train` run?)",
+            p.display(),
+            out.display()
+        )
+    })?;
+    let mut b = ess_proto::config::ConfigBuilder::new();
+    b.merge_toml(&p.display().to_string(), &text)?;
+    Ok(b.build()?)
+}
+
+/// Continues the run in `out` from its latest checkpoint
+/// ([`crate::checkpoint`]) with the configuration it was started with, appending to its
+/// `metrics.csv`. The continued run is bit-identical to one never stopped (on the
+/// threaded transport; actor processes start fresh episodes, see
+/// [`crate::checkpoint::TrainState::actors`]).
+pub fn resume(out: &Path, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<RunOutput> {
+    let cfg = run_config(out)?;
+    run_from(&cfg, out, progress, shutdown, true)
+}
+
+/// Seed of libtorch's random stream for iteration `it`: re-seeded every iteration, so a
+/// resumed run draws what the uninterrupted one drew.
+fn torch_seed(seed: u64, it: usize) -> i64 {
+    seed.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        .wrapping_add(it as u64) as i64
+}
+
+/// Keeps the header and the rows of iterations before `next` of `metrics.csv` (rows
+/// written after the checkpoint that is resumed from are dropped).
+fn truncate_metrics(path: &Path, next: usize) -> Result<()> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading {} to resume", path.display()))?;
+    let mut kept = String::new();
+    for (i, line) in text.lines().enumerate() {
+        let keep = i == 0
+            || line
+                .split(',')
+                .next()
+                .and_then(|f| f.parse::<usize>().ok())
+                .is_some_and(|it| it < next);
+        if keep {
+            kept.push_str(line);
+            kept.push('\n');
+        }
+    }
+    write_atomic(path, kept.as_bytes())
+}
+
+fn run_from(
+    cfg: &CheckedConfig,
+    out: &Path,
+    progress: &mut dyn Progress,
+    shutdown: &AtomicBool,
+    resuming: bool,
+) -> Result<RunOutput> {
     let t_total = Instant::now();
     std::fs::create_dir_all(out)
         .with_context(|| format!("creating output dir {}", out.display()))?;
-    std::fs::write(out.join("config.toml"), cfg.to_toml())
-        .with_context(|| format!("writing {}", out.join("config.toml").display()))?;
-    // Finished on every way out of this function (drop), see `crate::runlog`.
-    let mut runlog = crate::runlog::RunLog::create(&out.join("run.mcap"), cfg)?;
+    if !resuming {
+        std::fs::write(out.join("config.toml"), cfg.to_toml())
+            .with_context(|| format!("writing {}", out.join("config.toml").display()))?;
+    }
     let seed = cfg.run.seed;
     let threads = if cfg.run.torch_threads > 0 {
         cfg.run.torch_threads
@@ -421,9 +485,9 @@ pub fn run(
         use_eps: m.use_eps,
     };
     let input = od + 1 + k;
-    let vs = nn::VarStore::new(tch::Device::Cpu);
-    let prior_vs = nn::VarStore::new(tch::Device::Cpu);
-    let dvs = nn::VarStore::new(tch::Device::Cpu);
+    let mut vs = nn::VarStore::new(tch::Device::Cpu);
+    let mut prior_vs = nn::VarStore::new(tch::Device::Cpu);
+    let mut dvs = nn::VarStore::new(tch::Device::Cpu);
     let mut ppo = PpoLearner::new(
         &vs,
         &prior_vs,
@@ -435,20 +499,12 @@ pub fn run(
         m.gumbel_tau,
     )?;
     let disc = Discriminator::new(dvs.root() / "disc", od + ad, &cfg.disc.hidden, k);
-    let mut dopt = nn::Adam::default().build(&dvs, cfg.disc.lr)?;
+    let mut dopt = crate::optim::Adam::new(&dvs, cfg.disc.lr)?;
 
     let mut actors = rollout_source(cfg, latent, k)?;
 
-    let mut csv = std::io::BufWriter::new(
-        std::fs::File::create(out.join("metrics.csv"))
-            .with_context(|| format!("creating {}", out.join("metrics.csv").display()))?,
-    );
-    writeln!(csv, "{}", CSV_HEADER)?;
     let ckpt_dir = out.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir)?;
-
-    progress.message("training");
-    let t_train = Instant::now();
     let mut env_steps = 0usize;
     // Q_c's running estimate of the demos' mode marginal (`method.disc_code_reweight`).
     let mut qc_marginal = vec![1.0 / k as f64; k];
@@ -460,11 +516,80 @@ pub fn run(
     // take the final evaluation's numbers.
     let mut pending: Option<IterationLog> = None;
     let mut scaler = crate::ppo::RewardScaler::default();
-    for it in 1..=cfg.run.iterations {
+    let mut wall_before = 0.0;
+    let mut last_saved = None;
+    let metrics_path = out.join("metrics.csv");
+    if resuming {
+        let dir = crate::checkpoint::latest(&ckpt_dir)?.with_context(|| {
+            format!(
+                "no complete checkpoint under {} to resume from",
+                ckpt_dir.display()
+            )
+        })?;
+        progress.message(&format!("resuming from {}", dir.display()));
+        let st = crate::checkpoint::load(
+            &dir,
+            [&mut vs, &mut prior_vs, &mut dvs],
+            [&mut ppo.opt, &mut ppo.prior_opt, &mut dopt],
+        )?;
+        if st.qc_marginal.len() != k {
+            bail!(
+                "{}: qc_marginal has {} values for env.n_modes = {k}",
+                dir.display(),
+                st.qc_marginal.len()
+            );
+        }
+        if st.actors.is_empty() {
+            tracing::warn!(
+                checkpoint = %dir.display(),
+                "the checkpoint holds no actor states: actors start fresh episodes, so the resumed run is not bit-identical to an uninterrupted one"
+            );
+        } else {
+            let states = st
+                .actors
+                .iter()
+                .map(|a| a.to_state())
+                .collect::<Result<Vec<_>>>()?;
+            actors
+                .restore(&states)
+                .with_context(|| format!("{}: restoring the actors", dir.display()))?;
+        }
+        rng = st.rng.rng()?;
+        env_steps = st.env_steps;
+        qc_marginal = st.qc_marginal;
+        phases = st.phases;
+        iters_done = st.iteration;
+        curve = st.curve;
+        pending = st.pending;
+        scaler = st.scaler;
+        wall_before = st.wall_s;
+        last_saved = Some(st.iteration);
+        truncate_metrics(&metrics_path, st.iteration)?;
+    } else {
+        std::fs::write(&metrics_path, format!("{CSV_HEADER}\n"))
+            .with_context(|| format!("creating {}", metrics_path.display()))?;
+    }
+    // Finished on every way out of this function (drop), see `crate::runlog`.
+    let mut runlog = if resuming {
+        crate::runlog::RunLog::reopen(&out.join("run.mcap"), cfg, iters_done)?
+    } else {
+        crate::runlog::RunLog::create(&out.join("run.mcap"), cfg)?
+    };
+    let mut csv = std::io::BufWriter::new(
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(&metrics_path)
+            .with_context(|| format!("opening {}", metrics_path.display()))?,
+    );
+
+    progress.message("training");
+    let t_train = Instant::now();
+    for it in iters_done + 1..=cfg.run.iterations {
         if shutdown.load(Ordering::Relaxed) {
             interrupted = true;
             break;
         }
+        tch::manual_seed(torch_seed(seed, it));
         let mut log = IterationLog {
             iteration: it,
             ..Default::default()
@@ -704,7 +829,7 @@ pub fn run(
         phases.disc += log.disc_s;
         phases.ppo += log.ppo_s;
         log.env_steps = env_steps;
-        log.wall_s = t_train.elapsed().as_secs_f64();
+        log.wall_s = wall_before + t_train.elapsed().as_secs_f64();
         iters_done = it;
 
         if cfg.run.eval_every > 0
@@ -733,17 +858,60 @@ pub fn run(
             log.ent = Some(r.ent);
             log.normalized_reward = Some(r.normalized_reward);
         }
-        if cfg.run.checkpoint_every > 0 && it.is_multiple_of(cfg.run.checkpoint_every) {
-            save_checkpoint(&ckpt_dir, &vs, &prior_vs, &dvs, it)?;
-        }
         progress.iteration(&log);
         runlog.iteration(&log)?;
         if let Some(done) = pending.replace(log) {
             write_csv_row(&mut csv, &done)?;
         }
+        if cfg.run.checkpoint_every > 0 && it.is_multiple_of(cfg.run.checkpoint_every) {
+            csv.flush()?;
+            let mut st = crate::checkpoint::TrainState {
+                format: crate::checkpoint::FORMAT,
+                iteration: it,
+                env_steps,
+                wall_s: wall_before + t_train.elapsed().as_secs_f64(),
+                phases: phases.clone(),
+                curve: curve.clone(),
+                pending: pending.clone(),
+                rng: crate::checkpoint::RngState::of(&rng),
+                qc_marginal: qc_marginal.clone(),
+                scaler: scaler.clone(),
+                adam_steps: Default::default(),
+                actors: actor_states(actors.as_mut()),
+            };
+            crate::checkpoint::save(
+                &ckpt_dir,
+                [&vs, &prior_vs, &dvs],
+                [&ppo.opt, &ppo.prior_opt, &dopt],
+                &mut st,
+            )?;
+            last_saved = Some(it);
+        }
     }
-    let wall = t_train.elapsed().as_secs_f64();
-    save_checkpoint(&ckpt_dir, &vs, &prior_vs, &dvs, iters_done)?;
+    let wall = wall_before + t_train.elapsed().as_secs_f64();
+    if last_saved != Some(iters_done) {
+        csv.flush()?;
+        let mut st = crate::checkpoint::TrainState {
+            format: crate::checkpoint::FORMAT,
+            iteration: iters_done,
+            env_steps,
+            wall_s: wall,
+            phases: phases.clone(),
+            curve: curve.clone(),
+            pending: pending.clone(),
+            rng: crate::checkpoint::RngState::of(&rng),
+            qc_marginal: qc_marginal.clone(),
+            scaler: scaler.clone(),
+            adam_steps: Default::default(),
+            actors: actor_states(actors.as_mut()),
+        };
+        crate::checkpoint::save(
+            &ckpt_dir,
+            [&vs, &prior_vs, &dvs],
+            [&ppo.opt, &ppo.prior_opt, &dopt],
+            &mut st,
+        )?;
+    }
 
     progress.message("final evaluation");
     let w: PolicyWeights = export_policy(
@@ -920,22 +1088,16 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
-fn save_checkpoint(
-    dir: &Path,
-    vs: &nn::VarStore,
-    prior_vs: &nn::VarStore,
-    dvs: &nn::VarStore,
-    it: usize,
-) -> Result<()> {
-    for (name, store) in [("policy", vs), ("prior", prior_vs), ("disc", dvs)] {
-        let p = dir.join(format!("{name}-{it:06}.safetensors"));
-        store
-            .save(&p)
-            .with_context(|| format!("saving checkpoint {}", p.display()))?;
-        let latest = dir.join(format!("{name}-latest.safetensors"));
-        std::fs::copy(&p, &latest).with_context(|| format!("writing {}", latest.display()))?;
+/// The actors' states for a checkpoint; none (logged) where the transport cannot give
+/// them.
+fn actor_states(actors: &mut dyn RolloutSource) -> Vec<crate::checkpoint::SavedWorker> {
+    match actors.snapshot() {
+        Ok(states) => states.iter().map(Into::into).collect(),
+        Err(e) => {
+            tracing::warn!(error = %e, "checkpoint without actor states");
+            Vec::new()
+        }
     }
-    Ok(())
 }
 
 #[cfg(test)]
@@ -1013,5 +1175,24 @@ mod tests {
         assert!((final_nmi - out.summary.nmi).abs() < 1e-6, "{csv}");
         let ent: f64 = rows[2][col("ent")].parse().expect("final ent");
         assert!((ent - out.summary.ent).abs() < 1e-6, "{csv}");
+    }
+
+    #[test]
+    fn resuming_a_directory_without_a_checkpoint_names_what_is_missing() {
+        let small = || {
+            let mut b = ConfigBuilder::new();
+            b.set("run.iterations=2").expect("set");
+            b.build().expect("config")
+        };
+        let dir = tempfile::tempdir().expect("tmp");
+        let e = resume(dir.path(), &mut Quiet, &AtomicBool::new(false))
+            .err()
+            .expect("no run there");
+        assert!(format!("{e:#}").contains("config.toml"), "{e:#}");
+        std::fs::write(dir.path().join("config.toml"), small().to_toml()).expect("w");
+        let e = resume(dir.path(), &mut Quiet, &AtomicBool::new(false))
+            .err()
+            .expect("no checkpoint");
+        assert!(format!("{e:#}").contains("no complete checkpoint"), "{e:#}");
     }
 }

@@ -1,7 +1,10 @@
 //! The `ess` command as a user runs it: bad input is rejected with one clear line and
-//! exit code 2; every preset trains end to end and writes its outputs.
+//! exit code 2; every preset trains end to end and writes its outputs; SIGTERM stops a
+//! run cleanly and `--resume` finishes it.
 
-use ess_tests::{SMOKE, ess};
+use ess_tests::{SMOKE, ess, ess_bin};
+use std::io::BufRead;
+use std::process::{Command, Stdio};
 
 fn stderr(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
@@ -138,7 +141,7 @@ fn every_preset_trains_a_few_iterations_and_writes_its_outputs() {
             "summary.json",
             "trajectories.png",
             "curves.png",
-            "checkpoints/policy-latest.safetensors",
+            "checkpoints/iter-000002/policy.safetensors",
         ] {
             assert!(out.join(f).exists(), "{p}: missing {f}");
         }
@@ -242,4 +245,91 @@ fn every_mujoco_env_trains_a_few_iterations_from_its_shipped_experts() {
         assert_eq!(s["env"], env);
         assert!(s["nmi"].as_f64().unwrap().is_finite(), "{env}: {s}");
     }
+}
+
+#[test]
+fn sigterm_stops_training_cleanly_and_resume_finishes_the_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut child = Command::new(ess_bin())
+        .args(["train", "--out", out.to_str().unwrap()])
+        .args(SMOKE)
+        .args([
+            "--set",
+            "run.iterations=40",
+            "--set",
+            "run.eval_every=0",
+            "--set",
+            "run.reference_episodes=2",
+        ])
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawning ess");
+    // The loop has started once `ess: training` is printed; then SIGTERM.
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut seen = Vec::new();
+    for l in lines.by_ref() {
+        let l = l.unwrap();
+        let started = l == "ess: training";
+        seen.push(l);
+        if started {
+            break;
+        }
+    }
+    assert_eq!(
+        seen.last().map(String::as_str),
+        Some("ess: training"),
+        "{seen:?}"
+    );
+    let st = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let rest: Vec<String> = lines.map_while(Result::ok).collect();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(0), "{rest:?}");
+
+    let summary = |dir: &std::path::Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+    };
+    let s = summary(&out);
+    assert_eq!(s["interrupted"], serde_json::json!(true), "{s}");
+    let done = s["iterations"].as_u64().unwrap();
+    assert!(done < 40, "{s}");
+    assert!(
+        out.join(format!("checkpoints/iter-{done:06}/state.json"))
+            .exists()
+    );
+
+    let o = ess(&["train", "--resume", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = summary(&out);
+    assert_eq!(s["interrupted"], serde_json::json!(false), "{s}");
+    assert_eq!(s["iterations"].as_u64(), Some(40), "{s}");
+    assert_eq!(s["env_steps"].as_u64(), Some(40 * 400), "{s}");
+    let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+    let its: Vec<u64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(its, (1..=40).collect::<Vec<u64>>(), "{csv}");
+}
+
+#[test]
+fn resume_of_a_directory_without_a_run_is_rejected_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().join("nothing-here");
+    assert_input_error(&["train", "--resume", d.to_str().unwrap()], "nothing-here");
+}
+
+#[test]
+fn resume_refuses_a_new_configuration() {
+    assert_input_error(
+        &["train", "--resume", "runs/x", "--set", "run.iterations=3"],
+        "--set",
+    );
 }

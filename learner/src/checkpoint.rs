@@ -1,0 +1,284 @@
+//! Full training checkpoints: everything `ess train --resume DIR` needs to continue a
+//! run bit-identically.
+//!
+//! One checkpoint is one directory `<out>/checkpoints/iter-NNNNNN/` (NNNNNN = iterations
+//! done), written as `iter-NNNNNN.tmp/` and renamed when complete, so a run killed while
+//! saving leaves the previous checkpoint as the latest:
+//!
+//! - `policy.safetensors`, `prior.safetensors`, `disc.safetensors`: the three variable
+//!   stores (policy + value, p(c) logits, discriminator body and heads);
+//! - `optim.safetensors`: Adam's moments of the three optimisers
+//!   (`<opt>/<variable>/exp_avg`, `<opt>/<variable>/exp_avg_sq`);
+//! - `state.json` ([`TrainState`]): counters, the learner's ChaCha8 stream, Adam step
+//!   counts, the reward scaler, Q_c's running code marginal, the evaluation curve, the
+//!   metrics row still waiting for its successor, and each actor's complete state
+//!   (random stream, observation, latents, [`ess_envs::Env::state`]) between two steps.
+//!
+//! Floats in `state.json` round-trip exactly (serde_json's `float_roundtrip`). What is
+//! not saved is recomputed identically from the run's `config.toml`: the dataset and its
+//! normalisers, the behaviour classifier, and libtorch's random stream, which the
+//! training loop re-seeds from the seed and the iteration at every iteration.
+
+use crate::optim::{Adam, AdamState};
+use crate::report::CurvePoint;
+use crate::train::{IterationLog, PhaseSeconds};
+use anyhow::{Context, Result, bail};
+use ess_actor::WorkerState;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use tch::{Tensor, nn};
+
+/// Version of the checkpoint layout; a checkpoint of another version is refused.
+pub const FORMAT: u32 = 1;
+
+/// The variable stores, in file order.
+pub const STORES: [&str; 3] = ["policy", "prior", "disc"];
+
+/// A ChaCha8 generator's position.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct RngState {
+    /// Seed.
+    pub seed: [u8; 32],
+    /// Stream.
+    pub stream: u64,
+    /// Word position (decimal; a `u128`).
+    pub word_pos: String,
+}
+
+impl RngState {
+    /// Position of `rng`.
+    pub fn of(rng: &ChaCha8Rng) -> Self {
+        Self {
+            seed: rng.get_seed(),
+            stream: rng.get_stream(),
+            word_pos: rng.get_word_pos().to_string(),
+        }
+    }
+
+    /// A generator at this position.
+    pub fn rng(&self) -> Result<ChaCha8Rng> {
+        use rand::SeedableRng;
+        let pos: u128 = self
+            .word_pos
+            .parse()
+            .with_context(|| format!("rng word_pos `{}` is not a u128", self.word_pos))?;
+        let mut r = ChaCha8Rng::from_seed(self.seed);
+        r.set_stream(self.stream);
+        r.set_word_pos(pos);
+        Ok(r)
+    }
+}
+
+/// One actor's [`WorkerState`] as saved.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SavedWorker {
+    /// Its random stream.
+    pub rng: RngState,
+    /// Observation the next step acts on.
+    pub obs: Vec<f32>,
+    /// Current code.
+    pub code: Vec<f32>,
+    /// Gumbel noise of the code.
+    pub gumbel: Vec<f32>,
+    /// Current eps.
+    pub eps: f32,
+    /// Whether an episode is under way.
+    pub in_episode: bool,
+    /// The env's state vector.
+    pub env: Vec<f64>,
+}
+
+impl From<&WorkerState> for SavedWorker {
+    fn from(w: &WorkerState) -> Self {
+        Self {
+            rng: RngState {
+                seed: w.rng_seed,
+                stream: w.rng_stream,
+                word_pos: w.rng_word_pos.to_string(),
+            },
+            obs: w.obs.clone(),
+            code: w.code.clone(),
+            gumbel: w.gumbel.clone(),
+            eps: w.eps,
+            in_episode: w.in_episode,
+            env: w.env.clone(),
+        }
+    }
+}
+
+impl SavedWorker {
+    /// Back to a [`WorkerState`].
+    pub fn to_state(&self) -> Result<WorkerState> {
+        Ok(WorkerState {
+            rng_seed: self.rng.seed,
+            rng_stream: self.rng.stream,
+            rng_word_pos: self
+                .rng
+                .word_pos
+                .parse()
+                .with_context(|| format!("actor word_pos `{}`", self.rng.word_pos))?,
+            obs: self.obs.clone(),
+            code: self.code.clone(),
+            gumbel: self.gumbel.clone(),
+            eps: self.eps,
+            in_episode: self.in_episode,
+            env: self.env.clone(),
+        })
+    }
+}
+
+/// The reward scaler's statistics ([`crate::ppo::RewardScaler`]).
+pub type ScalerState = crate::ppo::RewardScaler;
+
+/// Everything of a run between two iterations that is not a tensor (`state.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrainState {
+    /// [`FORMAT`].
+    pub format: u32,
+    /// Iterations done.
+    pub iteration: usize,
+    /// Environment steps so far.
+    pub env_steps: usize,
+    /// Training wall seconds so far.
+    pub wall_s: f64,
+    /// Summed per-phase seconds.
+    pub phases: PhaseSeconds,
+    /// Evaluation curve so far.
+    pub curve: Vec<CurvePoint>,
+    /// The metrics row of the last iteration, not yet in `metrics.csv`.
+    pub pending: Option<IterationLog>,
+    /// The learner's random stream (minibatches, D/Q batches).
+    pub rng: RngState,
+    /// Q_c's running estimate of the demos' code marginal.
+    pub qc_marginal: Vec<f64>,
+    /// Reward scaler.
+    pub scaler: ScalerState,
+    /// Adam step counts per optimiser and variable.
+    pub adam_steps: BTreeMap<String, BTreeMap<String, i64>>,
+    /// Each actor's state, in actor order; empty when the actors could not provide it
+    /// (actor processes), in which case a resumed run starts fresh episodes.
+    pub actors: Vec<SavedWorker>,
+}
+
+/// Directory of the checkpoint after `iteration` iterations.
+pub fn dir_for(root: &Path, iteration: usize) -> PathBuf {
+    root.join(format!("iter-{iteration:06}"))
+}
+
+/// Writes a checkpoint into `root` (`checkpoints/`): `stores` and `opts` as named in
+/// [`STORES`], `state` with the Adam step counts filled in. Returns its directory.
+pub fn save(
+    root: &Path,
+    stores: [&nn::VarStore; 3],
+    opts: [&Adam; 3],
+    state: &mut TrainState,
+) -> Result<PathBuf> {
+    let dir = dir_for(root, state.iteration);
+    let tmp = dir.with_extension("tmp");
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
+    }
+    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    for (name, vs) in STORES.iter().zip(stores) {
+        let p = tmp.join(format!("{name}.safetensors"));
+        vs.save(&p)
+            .with_context(|| format!("saving {}", p.display()))?;
+    }
+    let mut tensors: Vec<(String, Tensor)> = Vec::new();
+    state.adam_steps.clear();
+    for (name, opt) in STORES.iter().zip(opts) {
+        let mut steps = BTreeMap::new();
+        for (var, (m, v, s)) in opt.state().params {
+            tensors.push((format!("{name}/{var}/exp_avg"), m));
+            tensors.push((format!("{name}/{var}/exp_avg_sq"), v));
+            steps.insert(var, s);
+        }
+        state.adam_steps.insert(name.to_string(), steps);
+    }
+    let p = tmp.join("optim.safetensors");
+    Tensor::write_safetensors(&tensors, &p).with_context(|| format!("saving {}", p.display()))?;
+    let p = tmp.join("state.json");
+    std::fs::write(&p, serde_json::to_vec_pretty(state)?)
+        .with_context(|| format!("writing {}", p.display()))?;
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).with_context(|| format!("replacing {}", dir.display()))?;
+    }
+    std::fs::rename(&tmp, &dir)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), dir.display()))?;
+    Ok(dir)
+}
+
+/// The complete checkpoint with the most iterations under `root`, if any.
+pub fn latest(root: &Path) -> Result<Option<PathBuf>> {
+    if !root.is_dir() {
+        return Ok(None);
+    }
+    let mut best: Option<(usize, PathBuf)> = None;
+    for e in std::fs::read_dir(root).with_context(|| format!("listing {}", root.display()))? {
+        let path = e?.path();
+        let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+            continue;
+        };
+        let Some(Ok(it)) = name.strip_prefix("iter-").map(str::parse::<usize>) else {
+            continue;
+        };
+        if path.join("state.json").is_file() && best.as_ref().is_none_or(|(b, _)| it > *b) {
+            best = Some((it, path));
+        }
+    }
+    Ok(best.map(|(_, p)| p))
+}
+
+/// Loads the checkpoint in `dir` into `stores` and `opts` (built for the same config)
+/// and returns its [`TrainState`].
+pub fn load(
+    dir: &Path,
+    stores: [&mut nn::VarStore; 3],
+    opts: [&mut Adam; 3],
+) -> Result<TrainState> {
+    let p = dir.join("state.json");
+    let text = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+    let state: TrainState =
+        serde_json::from_slice(&text).with_context(|| format!("parsing {}", p.display()))?;
+    if state.format != FORMAT {
+        bail!(
+            "{}: checkpoint format {} (this build reads format {FORMAT})",
+            p.display(),
+            state.format
+        );
+    }
+    for (name, vs) in STORES.iter().zip(stores) {
+        let p = dir.join(format!("{name}.safetensors"));
+        vs.load(&p).with_context(|| {
+            format!("loading {} (a checkpoint of another config?)", p.display())
+        })?;
+    }
+    let p = dir.join("optim.safetensors");
+    let mut tensors: BTreeMap<String, Tensor> = Tensor::read_safetensors(&p)
+        .with_context(|| format!("reading {}", p.display()))?
+        .into_iter()
+        .collect();
+    for (name, opt) in STORES.iter().zip(opts) {
+        let steps = state
+            .adam_steps
+            .get(*name)
+            .with_context(|| format!("{}: no Adam steps of `{name}`", dir.display()))?;
+        let mut st = AdamState::default();
+        for (var, &s) in steps {
+            let mut take = |what: &str| {
+                let key = format!("{name}/{var}/{what}");
+                tensors
+                    .remove(&key)
+                    .with_context(|| format!("{}: no tensor `{key}`", p.display()))
+            };
+            let m = take("exp_avg")?;
+            let v = take("exp_avg_sq")?;
+            st.params.insert(var.clone(), (m, v, s));
+        }
+        opt.set_state(&st)
+            .with_context(|| format!("{}: optimizer `{name}`", p.display()))?;
+    }
+    Ok(state)
+}

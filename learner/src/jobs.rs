@@ -1,0 +1,1173 @@
+//! The job manager behind `ess serve`: validates job specs, queues them against a core
+//! budget, runs each as an `ess train --progress jsonl` child process, follows its
+//! progress, and fans events out to any number of watchers.
+//!
+//! - **Runs**: a job's run directory is `<data_dir>/jobs/<id>/`; it holds the job record
+//!   `job.json`, the resolved configuration `job-config.toml` the child is started with
+//!   (`ess train --preset P --config job-config.toml --out <run dir>`), the child's
+//!   stderr `train.log`, and everything `ess train` writes. A resumed job runs
+//!   `ess train --resume <run dir>` when the run holds a checkpoint
+//!   (`checkpoints/iter-*`), else it starts over.
+//! - **Core budget**: a job holds `max(run.actors, run.torch_threads, 1)` cores (at
+//!   most the whole budget) while it runs; a job with `run.torch_threads = 0` (auto) is
+//!   given `torch_threads = cores` so that it does not spread over the whole machine.
+//!   Queued jobs start in submission order (FIFO; a large job at the head waits rather
+//!   than being overtaken).
+//! - **Stop**: SIGTERM to the child, which finishes its iteration, checkpoints, writes
+//!   `summary.json` with `"interrupted": true` and exits 0: the job ends STOPPED. A
+//!   queued job is stopped at once. Children run in their own process group, so a
+//!   terminal's Ctrl-C reaches only the server, which stops them once.
+//! - **Records** are rewritten at each state change and iteration; a server started on
+//!   the same data dir lists past jobs, queues the ones that were queued, and marks the
+//!   ones that were running FAILED (resumable).
+//! - **Watchers** subscribe to a per-job `tokio::sync::broadcast` channel; a watcher
+//!   that falls behind (lags) is caught up from the job's in-memory iteration history,
+//!   so slow watchers never block the job and still see every iteration.
+
+use crate::presets::{ConfigLayers, Layer, ResolveError};
+use crate::progress::{FinalRecord, ProgressEvent};
+use ess_proto::pb;
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+use tokio::io::AsyncBufReadExt;
+use tokio::sync::{broadcast, mpsc, watch};
+
+/// What can go wrong serving a request; one `From<Error> for tonic::Status`.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The request is malformed; `field` names the offending field (`spec.preset`,
+    /// `spec.overrides[2].key`, ...).
+    #[error("{field}: {message}")]
+    InvalidArgument {
+        /// Path of the field in the request.
+        field: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// No job with this id.
+    #[error("no job `{id}`")]
+    NotFound {
+        /// The id asked for.
+        id: String,
+    },
+    /// The job is in a state that does not allow the action.
+    #[error("job `{id}` is {state}: cannot {action} it")]
+    FailedPrecondition {
+        /// The job.
+        id: String,
+        /// Its state.
+        state: &'static str,
+        /// What was asked.
+        action: &'static str,
+    },
+    /// The server is shutting down and takes no new work.
+    #[error("the server is shutting down")]
+    ShuttingDown,
+    /// A file of the data dir could not be read or written.
+    #[error("{context}: {source}")]
+    Io {
+        /// What was being done, naming the file.
+        context: String,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+impl From<Error> for tonic::Status {
+    fn from(e: Error) -> Self {
+        let msg = e.to_string();
+        match e {
+            Error::InvalidArgument { .. } => tonic::Status::invalid_argument(msg),
+            Error::NotFound { .. } => tonic::Status::not_found(msg),
+            Error::FailedPrecondition { .. } => tonic::Status::failed_precondition(msg),
+            Error::ShuttingDown => tonic::Status::unavailable(msg),
+            Error::Io { .. } => tonic::Status::internal(msg),
+        }
+    }
+}
+
+fn io_err(context: impl Into<String>) -> impl FnOnce(std::io::Error) -> Error {
+    let context = context.into();
+    move |source| Error::Io { context, source }
+}
+
+/// How the manager runs jobs.
+#[derive(Debug, Clone)]
+pub struct ManagerConfig {
+    /// Data directory: `jobs/<id>/` per job.
+    pub data_dir: PathBuf,
+    /// Cores that running jobs may hold together.
+    pub cores: usize,
+    /// The `ess` binary jobs run as (`std::env::current_exe()` for `ess serve`).
+    pub exe: PathBuf,
+    /// How long a shutting-down server waits for its stopped jobs before killing them.
+    pub stop_grace: Duration,
+}
+
+/// A job's state (the persisted form of `ess.v1.JobState`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum State {
+    /// Waiting for cores.
+    Queued,
+    /// Its process runs.
+    Running,
+    /// Asked to stop; its process finishes the iteration and checkpoints.
+    Stopping,
+    /// Stopped before the end (resumable).
+    Stopped,
+    /// Ran to the end.
+    Succeeded,
+    /// Its process failed (resumable).
+    Failed,
+}
+
+impl State {
+    fn name(self) -> &'static str {
+        match self {
+            State::Queued => "QUEUED",
+            State::Running => "RUNNING",
+            State::Stopping => "STOPPING",
+            State::Stopped => "STOPPED",
+            State::Succeeded => "SUCCEEDED",
+            State::Failed => "FAILED",
+        }
+    }
+
+    /// Whether the job has ended (no more events until it is resumed).
+    pub fn is_final(self) -> bool {
+        matches!(self, State::Stopped | State::Succeeded | State::Failed)
+    }
+
+    fn pb(self) -> pb::JobState {
+        match self {
+            State::Queued => pb::JobState::Queued,
+            State::Running => pb::JobState::Running,
+            State::Stopping => pb::JobState::Stopping,
+            State::Stopped => pb::JobState::Stopped,
+            State::Succeeded => pb::JobState::Succeeded,
+            State::Failed => pb::JobState::Failed,
+        }
+    }
+
+    fn from_pb(s: pb::JobState) -> Option<Self> {
+        Some(match s {
+            pb::JobState::Unspecified => return None,
+            pb::JobState::Queued => State::Queued,
+            pb::JobState::Running => State::Running,
+            pb::JobState::Stopping => State::Stopping,
+            pb::JobState::Stopped => State::Stopped,
+            pb::JobState::Succeeded => State::Succeeded,
+            pb::JobState::Failed => State::Failed,
+        })
+    }
+}
+
+/// A job spec as persisted.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+struct SpecRecord {
+    preset: String,
+    env: String,
+    seed: Option<u64>,
+    overrides: Vec<(String, String)>,
+    config_toml: String,
+}
+
+impl From<&pb::JobSpec> for SpecRecord {
+    fn from(s: &pb::JobSpec) -> Self {
+        Self {
+            preset: s.preset.clone(),
+            env: s.env.clone(),
+            seed: s.seed,
+            overrides: s
+                .overrides
+                .iter()
+                .map(|o| (o.key.clone(), o.value.clone()))
+                .collect(),
+            config_toml: s.config_toml.clone(),
+        }
+    }
+}
+
+impl From<&SpecRecord> for pb::JobSpec {
+    fn from(s: &SpecRecord) -> Self {
+        Self {
+            preset: s.preset.clone(),
+            env: s.env.clone(),
+            seed: s.seed,
+            overrides: s
+                .overrides
+                .iter()
+                .map(|(key, value)| pb::Override {
+                    key: key.clone(),
+                    value: value.clone(),
+                })
+                .collect(),
+            config_toml: s.config_toml.clone(),
+        }
+    }
+}
+
+/// `job.json`: everything about a job that outlives the server.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct JobRecord {
+    id: String,
+    /// Submission order (ids are `job-<seq>`).
+    seq: u64,
+    spec: SpecRecord,
+    /// The resolved preset name (`--preset` of the child).
+    preset: String,
+    state: State,
+    iteration: u32,
+    iterations: u32,
+    env_steps: u64,
+    cores: u32,
+    /// `run.torch_threads` forced on the child (auto configs), if any.
+    torch_threads: Option<usize>,
+    run_dir: PathBuf,
+    created_unix_ms: i64,
+    started_unix_ms: i64,
+    finished_unix_ms: i64,
+    error: String,
+    result: Option<FinalRecord>,
+    resumes: u32,
+    /// Whether the next start continues from the run's checkpoint.
+    resume_next: bool,
+    /// A stop was asked for (the child's exit then means STOPPED).
+    stop_requested: bool,
+    #[serde(skip)]
+    phase: String,
+}
+
+impl JobRecord {
+    fn to_pb(&self) -> pb::Job {
+        pb::Job {
+            id: self.id.clone(),
+            spec: Some((&self.spec).into()),
+            state: self.state.pb().into(),
+            iteration: self.iteration,
+            iterations: self.iterations,
+            env_steps: self.env_steps,
+            cores: self.cores,
+            run_dir: self.run_dir.display().to_string(),
+            created_unix_ms: self.created_unix_ms,
+            started_unix_ms: self.started_unix_ms,
+            finished_unix_ms: self.finished_unix_ms,
+            error: self.error.clone(),
+            result: self.result.as_ref().map(|r| pb::JobResult {
+                nmi: r.nmi,
+                ent: r.ent,
+                normalized_reward: r.normalized_reward,
+                env_steps: r.env_steps,
+                wall_seconds: r.wall_seconds,
+            }),
+            resumes: self.resumes,
+            phase: self.phase.clone(),
+        }
+    }
+
+    fn record_path(&self) -> PathBuf {
+        self.run_dir.join("job.json")
+    }
+
+    fn config_path(&self) -> PathBuf {
+        self.run_dir.join("job-config.toml")
+    }
+}
+
+/// One broadcast item: a job event, with its index in the job's iteration history when
+/// it carries metrics.
+#[derive(Debug, Clone)]
+struct Broadcast {
+    seq: Option<usize>,
+    event: Arc<pb::JobEvent>,
+}
+
+struct Entry {
+    rec: JobRecord,
+    tx: broadcast::Sender<Broadcast>,
+    /// Every iteration's metrics since the server started (all runs of the job).
+    history: Vec<pb::IterationMetrics>,
+    pid: Option<u32>,
+}
+
+struct Inner {
+    jobs: BTreeMap<String, Entry>,
+    queue: VecDeque<String>,
+    used_cores: usize,
+    running: usize,
+    next_seq: u64,
+    shutting_down: bool,
+}
+
+/// Capacity of each job's broadcast channel; a watcher further behind is caught up from
+/// the history.
+const BROADCAST_CAPACITY: usize = 256;
+
+/// The jobs of one server; cheap to share (`Arc`).
+pub struct Manager {
+    cfg: ManagerConfig,
+    inner: Mutex<Inner>,
+    /// Wakes [`Manager::shutdown`] when a job process ends.
+    ended: tokio::sync::Notify,
+    /// Set once the server stops: open watch streams end.
+    closing: watch::Sender<bool>,
+}
+
+fn now_ms() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+        .unwrap_or(0)
+}
+
+/// Whether `run_dir` holds a complete checkpoint to resume from.
+fn has_checkpoint(run_dir: &Path) -> bool {
+    std::fs::read_dir(run_dir.join("checkpoints"))
+        .map(|d| {
+            d.flatten().any(|e| {
+                let n = e.file_name();
+                let n = n.to_string_lossy();
+                n.starts_with("iter-") && !n.ends_with(".tmp") && e.path().is_dir()
+            })
+        })
+        .unwrap_or(false)
+}
+
+/// The last non-empty lines of a job's `train.log`, to say why it failed.
+fn log_tail(path: &Path, lines: usize) -> String {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let mut tail: Vec<&str> = text
+        .lines()
+        .rev()
+        .filter(|l| !l.trim().is_empty())
+        .take(lines)
+        .collect();
+    tail.reverse();
+    tail.join(" | ")
+}
+
+/// The request field a [`ResolveError`] is blamed on.
+fn spec_field(e: &ResolveError) -> String {
+    match e.layer {
+        Layer::Preset => "spec.preset".into(),
+        Layer::EnvDefaults | Layer::Env => "spec.env".into(),
+        Layer::Config => "spec.config_toml".into(),
+        Layer::Seed => "spec.seed".into(),
+        Layer::Set(i) if e.bad_key => format!("spec.overrides[{i}].key"),
+        Layer::Set(i) => format!("spec.overrides[{i}].value"),
+    }
+}
+
+/// A spec validated: its resolved config and what the job holds.
+struct Validated {
+    preset: String,
+    config_toml: String,
+    iterations: u32,
+    cores: usize,
+    torch_threads: Option<usize>,
+}
+
+/// Resolves `spec` exactly as `ess train` resolves its flags; errors name the field.
+fn validate(spec: &pb::JobSpec, budget: usize) -> Result<Validated, Error> {
+    let invalid = |field: String, message: String| Error::InvalidArgument { field, message };
+    let mut set = Vec::with_capacity(spec.overrides.len());
+    for (i, o) in spec.overrides.iter().enumerate() {
+        let key = o.key.trim();
+        if key.is_empty() || key.contains('=') || key.contains(char::is_whitespace) {
+            return Err(invalid(
+                format!("spec.overrides[{i}].key"),
+                format!("`{}` is not a dotted config key", o.key),
+            ));
+        }
+        if o.value.trim().is_empty() {
+            return Err(invalid(
+                format!("spec.overrides[{i}].value"),
+                format!("empty value for `{key}`"),
+            ));
+        }
+        set.push(format!("{key}={}", o.value));
+    }
+    if spec.preset.contains('/') || spec.preset.ends_with(".toml") {
+        return Err(invalid(
+            "spec.preset".into(),
+            format!(
+                "`{}`: a job takes a preset name (`ess presets`); send a file's contents as config_toml",
+                spec.preset
+            ),
+        ));
+    }
+    let layers = ConfigLayers {
+        preset: spec.preset.clone(),
+        preset_files: false,
+        config: (!spec.config_toml.trim().is_empty())
+            .then(|| ("spec.config_toml".to_string(), spec.config_toml.clone())),
+        set,
+        env: (!spec.env.is_empty()).then(|| spec.env.clone()),
+        seed: spec.seed,
+    };
+    let cfg = layers
+        .resolve()
+        .map_err(|e| invalid(spec_field(&e), e.message.clone()))?;
+    if cfg.run.transport == ess_proto::config::ActorTransport::Processes
+        && let Err(e) = crate::actors::actor_binary()
+    {
+        let blamed = layers.blame_key("run.transport", e.to_string());
+        return Err(invalid(spec_field(&blamed), blamed.message));
+    }
+    let cores = cfg
+        .run
+        .actors
+        .max(cfg.run.torch_threads)
+        .max(1)
+        .min(budget.max(1));
+    Ok(Validated {
+        preset: if spec.preset.is_empty() {
+            "ess-infogail".into()
+        } else {
+            spec.preset.clone()
+        },
+        config_toml: cfg.to_toml(),
+        iterations: u32::try_from(cfg.run.iterations).unwrap_or(u32::MAX),
+        cores,
+        torch_threads: (cfg.run.torch_threads == 0).then_some(cores),
+    })
+}
+
+impl Manager {
+    /// Opens the data dir: loads the job records there (queued jobs queue again; jobs
+    /// that were running are marked FAILED), and starts what fits the budget.
+    pub fn open(cfg: ManagerConfig) -> Result<Arc<Self>, Error> {
+        let jobs_dir = cfg.data_dir.join("jobs");
+        std::fs::create_dir_all(&jobs_dir)
+            .map_err(io_err(format!("creating {}", jobs_dir.display())))?;
+        let mut records = Vec::new();
+        for e in std::fs::read_dir(&jobs_dir)
+            .map_err(io_err(format!("reading {}", jobs_dir.display())))?
+            .flatten()
+        {
+            let path = e.path().join("job.json");
+            let Ok(text) = std::fs::read_to_string(&path) else {
+                continue;
+            };
+            match serde_json::from_str::<JobRecord>(&text) {
+                Ok(r) => records.push(r),
+                Err(err) => {
+                    tracing::warn!(file = %path.display(), error = %err, "skipping an unreadable job record")
+                }
+            }
+        }
+        records.sort_by_key(|r| r.seq);
+        let mut inner = Inner {
+            jobs: BTreeMap::new(),
+            queue: VecDeque::new(),
+            used_cores: 0,
+            running: 0,
+            next_seq: records.last().map_or(1, |r| r.seq + 1),
+            shutting_down: false,
+        };
+        let mut changed = Vec::new();
+        for mut rec in records {
+            match rec.state {
+                State::Running | State::Stopping => {
+                    rec.state = State::Failed;
+                    rec.error = "the server exited while the job ran".into();
+                    rec.finished_unix_ms = now_ms();
+                    rec.resume_next = has_checkpoint(&rec.run_dir);
+                    changed.push(rec.clone());
+                }
+                State::Queued => inner.queue.push_back(rec.id.clone()),
+                _ => {}
+            }
+            let (tx, _) = broadcast::channel(BROADCAST_CAPACITY);
+            inner.jobs.insert(
+                rec.id.clone(),
+                Entry {
+                    rec,
+                    tx,
+                    history: Vec::new(),
+                    pid: None,
+                },
+            );
+        }
+        for rec in &changed {
+            persist(rec)?;
+        }
+        let (closing, _) = watch::channel(false);
+        let m = Arc::new(Self {
+            cfg,
+            inner: Mutex::new(inner),
+            ended: tokio::sync::Notify::new(),
+            closing,
+        });
+        {
+            let mut inner = m.lock();
+            m.schedule(&mut inner);
+        }
+        Ok(m)
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Inner> {
+        // A panic while holding the lock cannot leave the maps half-updated in a way
+        // that matters more than losing the server, so poisoning is ignored.
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Validates and queues a job.
+    pub async fn submit(self: &Arc<Self>, spec: pb::JobSpec) -> Result<pb::Job, Error> {
+        if self.lock().shutting_down {
+            return Err(Error::ShuttingDown);
+        }
+        let budget = self.cfg.cores;
+        let spec2 = spec.clone();
+        // Resolving builds the env once (MuJoCo: parses its model): off the runtime.
+        let v = tokio::task::spawn_blocking(move || validate(&spec2, budget))
+            .await
+            .map_err(|e| Error::Io {
+                context: "validating the spec".into(),
+                source: std::io::Error::other(e),
+            })??;
+        let mut inner = self.lock();
+        if inner.shutting_down {
+            return Err(Error::ShuttingDown);
+        }
+        let seq = inner.next_seq;
+        inner.next_seq += 1;
+        let id = format!("job-{seq}");
+        let run_dir = self.cfg.data_dir.join("jobs").join(&id);
+        std::fs::create_dir_all(&run_dir)
+            .map_err(io_err(format!("creating {}", run_dir.display())))?;
+        let rec = JobRecord {
+            id: id.clone(),
+            seq,
+            spec: (&spec).into(),
+            preset: v.preset,
+            state: State::Queued,
+            iteration: 0,
+            iterations: v.iterations,
+            env_steps: 0,
+            cores: u32::try_from(v.cores).unwrap_or(u32::MAX),
+            torch_threads: v.torch_threads,
+            run_dir,
+            created_unix_ms: now_ms(),
+            started_unix_ms: 0,
+            finished_unix_ms: 0,
+            error: String::new(),
+            result: None,
+            resumes: 0,
+            resume_next: false,
+            stop_requested: false,
+            phase: String::new(),
+        };
+        std::fs::write(rec.config_path(), v.config_toml)
+            .map_err(io_err(format!("writing {}", rec.config_path().display())))?;
+        persist(&rec)?;
+        let job = rec.to_pb();
+        let (tx, _) = broadcast::channel(BROADCAST_CAPACITY);
+        inner.jobs.insert(
+            id.clone(),
+            Entry {
+                rec,
+                tx,
+                history: Vec::new(),
+                pid: None,
+            },
+        );
+        inner.queue.push_back(id.clone());
+        tracing::info!(job = %id, "queued");
+        self.schedule(&mut inner);
+        Ok(inner.jobs.get(&id).map_or(job, |e| e.rec.to_pb()))
+    }
+
+    /// Every job (oldest first), or those in `states`.
+    pub fn list(&self, states: &[pb::JobState]) -> Vec<pb::Job> {
+        let want: Vec<State> = states.iter().filter_map(|s| State::from_pb(*s)).collect();
+        let inner = self.lock();
+        let mut jobs: Vec<&Entry> = inner
+            .jobs
+            .values()
+            .filter(|e| want.is_empty() || want.contains(&e.rec.state))
+            .collect();
+        jobs.sort_by_key(|e| e.rec.seq);
+        jobs.into_iter().map(|e| e.rec.to_pb()).collect()
+    }
+
+    /// One job.
+    pub fn get(&self, id: &str) -> Result<pb::Job, Error> {
+        let inner = self.lock();
+        inner
+            .jobs
+            .get(id)
+            .map(|e| e.rec.to_pb())
+            .ok_or_else(|| Error::NotFound { id: id.into() })
+    }
+
+    /// Stops a job: a queued one at once, a running one gracefully (SIGTERM).
+    pub fn stop(self: &Arc<Self>, id: &str) -> Result<pb::Job, Error> {
+        let mut inner = self.lock();
+        let inner = &mut *inner;
+        let entry = inner
+            .jobs
+            .get_mut(id)
+            .ok_or_else(|| Error::NotFound { id: id.into() })?;
+        match entry.rec.state {
+            State::Queued => {
+                inner.queue.retain(|q| q != id);
+                entry.rec.state = State::Stopped;
+                entry.rec.finished_unix_ms = now_ms();
+                persist(&entry.rec)?;
+                publish(entry, None);
+            }
+            State::Running => {
+                entry.rec.stop_requested = true;
+                entry.rec.state = State::Stopping;
+                if let Some(pid) = entry.pid {
+                    terminate(pid);
+                }
+                persist(&entry.rec)?;
+                publish(entry, None);
+            }
+            State::Stopping => {}
+            s => {
+                return Err(Error::FailedPrecondition {
+                    id: id.into(),
+                    state: s.name(),
+                    action: "stop",
+                });
+            }
+        }
+        Ok(entry.rec.to_pb())
+    }
+
+    /// Queues a STOPPED or FAILED job again; it continues from its last checkpoint.
+    pub fn resume(self: &Arc<Self>, id: &str) -> Result<pb::Job, Error> {
+        let mut inner = self.lock();
+        if inner.shutting_down {
+            return Err(Error::ShuttingDown);
+        }
+        let entry = inner
+            .jobs
+            .get_mut(id)
+            .ok_or_else(|| Error::NotFound { id: id.into() })?;
+        match entry.rec.state {
+            State::Stopped | State::Failed => {}
+            s => {
+                return Err(Error::FailedPrecondition {
+                    id: id.into(),
+                    state: s.name(),
+                    action: "resume",
+                });
+            }
+        }
+        entry.rec.resume_next = has_checkpoint(&entry.rec.run_dir);
+        entry.rec.resumes += 1;
+        entry.rec.state = State::Queued;
+        entry.rec.error.clear();
+        entry.rec.result = None;
+        entry.rec.stop_requested = false;
+        entry.rec.finished_unix_ms = 0;
+        persist(&entry.rec)?;
+        publish(entry, None);
+        inner.queue.push_back(id.to_string());
+        self.schedule(&mut inner);
+        inner
+            .jobs
+            .get(id)
+            .map(|e| e.rec.to_pb())
+            .ok_or_else(|| Error::NotFound { id: id.into() })
+    }
+
+    /// A stream of `id`'s events: its current state first, then every iteration and
+    /// state change until the job ends (or the server stops: `Unavailable`).
+    pub fn watch(
+        self: &Arc<Self>,
+        id: &str,
+    ) -> Result<mpsc::Receiver<Result<pb::JobEvent, tonic::Status>>, Error> {
+        let (first, mut rx, mut next_seq) = {
+            let inner = self.lock();
+            let e = inner
+                .jobs
+                .get(id)
+                .ok_or_else(|| Error::NotFound { id: id.into() })?;
+            (
+                pb::JobEvent {
+                    job: Some(e.rec.to_pb()),
+                    metrics: None,
+                },
+                e.tx.subscribe(),
+                e.history.len(),
+            )
+        };
+        let (tx, out) = mpsc::channel(16);
+        let mut closing = self.closing.subscribe();
+        let me = self.clone();
+        let id = id.to_string();
+        tokio::spawn(async move {
+            let done = is_final(&first);
+            if tx.send(Ok(first)).await.is_err() || done {
+                return;
+            }
+            loop {
+                let item = tokio::select! {
+                    r = rx.recv() => r,
+                    () = closed(&mut closing) => {
+                        let _ = tx.send(Err(tonic::Status::unavailable("the server is shutting down"))).await;
+                        return;
+                    }
+                    () = tx.closed() => return,
+                };
+                let batch: Vec<pb::JobEvent> = match item {
+                    Ok(b) => match b.seq {
+                        Some(s) if s < next_seq => continue,
+                        Some(s) => {
+                            next_seq = s + 1;
+                            vec![(*b.event).clone()]
+                        }
+                        None => vec![(*b.event).clone()],
+                    },
+                    Err(broadcast::error::RecvError::Lagged(n)) => {
+                        tracing::debug!(job = %id, missed = n, "watcher lagged; catching up");
+                        match me.catch_up(&id, &mut next_seq) {
+                            Some(v) => v,
+                            None => return,
+                        }
+                    }
+                    Err(broadcast::error::RecvError::Closed) => return,
+                };
+                for ev in batch {
+                    let done = is_final(&ev);
+                    if tx.send(Ok(ev)).await.is_err() || done {
+                        return;
+                    }
+                }
+            }
+        });
+        Ok(out)
+    }
+
+    /// The iterations of `id` from `*next_seq` on, then its current state; advances
+    /// `next_seq` past them.
+    fn catch_up(&self, id: &str, next_seq: &mut usize) -> Option<Vec<pb::JobEvent>> {
+        let inner = self.lock();
+        let e = inner.jobs.get(id)?;
+        let job = e.rec.to_pb();
+        let mut v: Vec<pb::JobEvent> = e
+            .history
+            .get(*next_seq..)
+            .unwrap_or_default()
+            .iter()
+            .map(|m| pb::JobEvent {
+                job: Some(job.clone()),
+                metrics: Some(m.clone()),
+            })
+            .collect();
+        *next_seq = e.history.len();
+        v.push(pb::JobEvent {
+            job: Some(job),
+            metrics: None,
+        });
+        Some(v)
+    }
+
+    /// Starts queued jobs while the budget allows (FIFO). Called with the lock held.
+    fn schedule(self: &Arc<Self>, inner: &mut Inner) {
+        while !inner.shutting_down {
+            let Some(id) = inner.queue.front().cloned() else {
+                return;
+            };
+            let Some(cores) = inner.jobs.get(&id).map(|e| e.rec.cores as usize) else {
+                inner.queue.pop_front();
+                continue;
+            };
+            if inner.used_cores > 0 && inner.used_cores + cores > self.cfg.cores {
+                return;
+            }
+            inner.queue.pop_front();
+            self.start(inner, &id, cores);
+        }
+    }
+
+    /// Spawns job `id`'s process and the task that follows it.
+    fn start(self: &Arc<Self>, inner: &mut Inner, id: &str, cores: usize) {
+        let Some(entry) = inner.jobs.get_mut(id) else {
+            return;
+        };
+        let rec = &mut entry.rec;
+        let mut cmd = tokio::process::Command::new(&self.cfg.exe);
+        cmd.arg("train");
+        if rec.resume_next {
+            cmd.arg("--resume").arg(&rec.run_dir);
+        } else {
+            cmd.arg("--preset")
+                .arg(&rec.preset)
+                .arg("--config")
+                .arg(rec.config_path())
+                .arg("--out")
+                .arg(&rec.run_dir);
+            if let Some(t) = rec.torch_threads {
+                cmd.arg("--set").arg(format!("run.torch_threads={t}"));
+            }
+        }
+        cmd.arg("--progress").arg("jsonl");
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(rec.run_dir.join("train.log"));
+        let spawned = log.and_then(|log| {
+            cmd.stdin(Stdio::null())
+                .stdout(Stdio::piped())
+                .stderr(Stdio::from(log))
+                // Own process group: a terminal's Ctrl-C reaches the server only.
+                .process_group(0)
+                .kill_on_drop(true)
+                .spawn()
+        });
+        rec.started_unix_ms = now_ms();
+        rec.iteration = if rec.resume_next { rec.iteration } else { 0 };
+        match spawned {
+            Ok(child) => {
+                rec.state = State::Running;
+                rec.phase = "starting".into();
+                entry.pid = child.id();
+                inner.used_cores += cores;
+                inner.running += 1;
+                tracing::info!(job = %id, pid = ?entry.pid, resume = rec.resume_next, "started");
+                if let Err(e) = persist(rec) {
+                    tracing::warn!(job = %id, error = %e, "job record not written");
+                }
+                publish(entry, None);
+                let me = self.clone();
+                let id = id.to_string();
+                tokio::spawn(async move { me.follow(id, child, cores).await });
+            }
+            Err(e) => {
+                rec.state = State::Failed;
+                rec.error = format!("cannot start {}: {e}", self.cfg.exe.display());
+                rec.finished_unix_ms = now_ms();
+                if let Err(e) = persist(rec) {
+                    tracing::warn!(job = %id, error = %e, "job record not written");
+                }
+                publish(entry, None);
+            }
+        }
+    }
+
+    /// Reads the child's progress lines until it exits, then records how it ended.
+    async fn follow(self: Arc<Self>, id: String, mut child: tokio::process::Child, cores: usize) {
+        if let Some(stdout) = child.stdout.take() {
+            let mut lines = tokio::io::BufReader::new(stdout).lines();
+            loop {
+                match lines.next_line().await {
+                    Ok(Some(line)) => self.on_line(&id, &line),
+                    Ok(None) => break,
+                    Err(e) => {
+                        tracing::warn!(job = %id, error = %e, "reading the job's progress");
+                        break;
+                    }
+                }
+            }
+        }
+        let status = child.wait().await;
+        self.on_exit(&id, status, cores);
+        self.ended.notify_waiters();
+    }
+
+    fn on_line(&self, id: &str, line: &str) {
+        let ev = match serde_json::from_str::<ProgressEvent>(line) {
+            Ok(ev) => ev,
+            Err(e) => {
+                tracing::debug!(job = %id, error = %e, line, "not a progress line");
+                return;
+            }
+        };
+        let mut inner = self.lock();
+        let Some(entry) = inner.jobs.get_mut(id) else {
+            return;
+        };
+        match ev {
+            ProgressEvent::Message { message } => {
+                entry.rec.phase = message;
+                publish(entry, None);
+            }
+            ProgressEvent::Iteration(r) => {
+                entry.rec.iteration = r.iteration;
+                entry.rec.env_steps = r.env_steps;
+                let m: pb::IterationMetrics = r.into();
+                entry.history.push(m.clone());
+                let seq = entry.history.len() - 1;
+                if let Err(e) = persist(&entry.rec) {
+                    tracing::warn!(job = %id, error = %e, "job record not written");
+                }
+                publish(entry, Some((seq, m)));
+            }
+            ProgressEvent::Summary(f) => entry.rec.result = Some(f),
+        }
+    }
+
+    fn on_exit(
+        self: &Arc<Self>,
+        id: &str,
+        status: std::io::Result<std::process::ExitStatus>,
+        cores: usize,
+    ) {
+        let mut inner = self.lock();
+        inner.used_cores = inner.used_cores.saturating_sub(cores);
+        inner.running = inner.running.saturating_sub(1);
+        if let Some(entry) = inner.jobs.get_mut(id) {
+            entry.pid = None;
+            let rec = &mut entry.rec;
+            rec.finished_unix_ms = now_ms();
+            rec.phase.clear();
+            let ok = status.as_ref().is_ok_and(|s| s.success());
+            if ok && rec.result.is_none() {
+                rec.result = std::fs::read_to_string(rec.run_dir.join("summary.json"))
+                    .ok()
+                    .and_then(|t| serde_json::from_str(&t).ok());
+            }
+            let interrupted = rec.result.as_ref().is_some_and(|r| r.interrupted);
+            rec.state = if ok && (interrupted || rec.stop_requested) {
+                State::Stopped
+            } else if ok {
+                State::Succeeded
+            } else {
+                rec.error = match &status {
+                    Ok(s) => format!(
+                        "ess train exited with {s}: {}",
+                        log_tail(&rec.run_dir.join("train.log"), 3)
+                    ),
+                    Err(e) => format!("waiting for ess train: {e}"),
+                };
+                State::Failed
+            };
+            if let Some(r) = &rec.result {
+                rec.env_steps = r.env_steps;
+            }
+            rec.resume_next = rec.state != State::Succeeded && has_checkpoint(&rec.run_dir);
+            rec.stop_requested = false;
+            tracing::info!(job = %id, state = rec.state.name(), "ended");
+            if let Err(e) = persist(rec) {
+                tracing::warn!(job = %id, error = %e, "job record not written");
+            }
+            publish(entry, None);
+        }
+        self.schedule(&mut inner);
+    }
+
+    /// Stops taking work, stops every running job gracefully (SIGTERM; SIGKILL after
+    /// the grace period), and ends open watch streams. Queued jobs stay queued for the
+    /// next server on this data dir.
+    pub async fn shutdown(self: &Arc<Self>) {
+        let pids: Vec<u32> = {
+            let mut inner = self.lock();
+            inner.shutting_down = true;
+            let mut pids = Vec::new();
+            for e in inner.jobs.values_mut() {
+                if let Some(pid) = e.pid {
+                    if e.rec.state == State::Running {
+                        e.rec.state = State::Stopping;
+                        e.rec.stop_requested = true;
+                        if let Err(err) = persist(&e.rec) {
+                            tracing::warn!(job = %e.rec.id, error = %err, "job record not written");
+                        }
+                        publish(e, None);
+                    }
+                    pids.push(pid);
+                }
+            }
+            pids
+        };
+        for &pid in &pids {
+            terminate(pid);
+        }
+        if !pids.is_empty() {
+            tracing::info!(jobs = pids.len(), "stopping running jobs");
+        }
+        let wait_all = async {
+            loop {
+                let ended = self.ended.notified();
+                if self.lock().running == 0 {
+                    return;
+                }
+                ended.await;
+            }
+        };
+        if tokio::time::timeout(self.cfg.stop_grace, wait_all)
+            .await
+            .is_err()
+        {
+            let left: Vec<u32> = self.lock().jobs.values().filter_map(|e| e.pid).collect();
+            tracing::warn!(pids = ?left, "jobs did not stop in time; killing them");
+            for pid in left {
+                let _ = nix::sys::signal::kill(
+                    nix::unistd::Pid::from_raw(pid as i32),
+                    nix::sys::signal::Signal::SIGKILL,
+                );
+            }
+            let wait_all = async {
+                loop {
+                    let ended = self.ended.notified();
+                    if self.lock().running == 0 {
+                        return;
+                    }
+                    ended.await;
+                }
+            };
+            let _ = tokio::time::timeout(Duration::from_secs(10), wait_all).await;
+        }
+        self.closing.send_replace(true);
+    }
+}
+
+/// Resolves once the server closes (or the manager is gone).
+async fn closed(rx: &mut watch::Receiver<bool>) {
+    let _ = rx.wait_for(|c| *c).await;
+}
+
+fn is_final(ev: &pb::JobEvent) -> bool {
+    ev.job
+        .as_ref()
+        .and_then(|j| pb::JobState::try_from(j.state).ok())
+        .and_then(State::from_pb)
+        .is_some_and(State::is_final)
+}
+
+/// Sends the job's current state (with `metrics`, the iteration that just finished).
+fn publish(entry: &mut Entry, metrics: Option<(usize, pb::IterationMetrics)>) {
+    let (seq, metrics) = match metrics {
+        Some((s, m)) => (Some(s), Some(m)),
+        None => (None, None),
+    };
+    // No receivers is fine: nobody watches.
+    let _ = entry.tx.send(Broadcast {
+        seq,
+        event: Arc::new(pb::JobEvent {
+            job: Some(entry.rec.to_pb()),
+            metrics,
+        }),
+    });
+}
+
+/// SIGTERM: the child finishes its iteration, checkpoints and exits.
+fn terminate(pid: u32) {
+    let Ok(raw) = i32::try_from(pid) else { return };
+    if let Err(e) = nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(raw),
+        nix::sys::signal::Signal::SIGTERM,
+    ) {
+        tracing::warn!(pid, error = %e, "cannot signal the job process");
+    }
+}
+
+/// Writes `job.json` atomically (temp file + rename).
+fn persist(rec: &JobRecord) -> Result<(), Error> {
+    let path = rec.record_path();
+    let tmp = path.with_extension("json.tmp");
+    let text = serde_json::to_vec_pretty(rec).map_err(|e| Error::Io {
+        context: format!("encoding {}", path.display()),
+        source: std::io::Error::other(e),
+    })?;
+    std::fs::write(&tmp, text).map_err(io_err(format!("writing {}", tmp.display())))?;
+    std::fs::rename(&tmp, &path).map_err(io_err(format!("renaming to {}", path.display())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(preset: &str, overrides: &[(&str, &str)]) -> pb::JobSpec {
+        pb::JobSpec {
+            preset: preset.into(),
+            overrides: overrides
+                .iter()
+                .map(|(k, v)| pb::Override {
+                    key: (*k).into(),
+                    value: (*v).into(),
+                })
+                .collect(),
+            ..Default::default()
+        }
+    }
+
+    fn field_of(s: &pb::JobSpec) -> String {
+        match validate(s, 2) {
+            Err(Error::InvalidArgument { field, .. }) => field,
+            Err(e) => panic!("{e}"),
+            Ok(_) => panic!("accepted"),
+        }
+    }
+
+    #[test]
+    fn malformed_specs_name_the_offending_field() {
+        assert_eq!(field_of(&spec("gial", &[])), "spec.preset");
+        assert_eq!(field_of(&spec("deploy/x.toml", &[])), "spec.preset");
+        let ok = ("run.iterations", "2");
+        assert_eq!(
+            field_of(&spec("", &[ok, ("ppo.lrr", "1")])),
+            "spec.overrides[1].key"
+        );
+        assert_eq!(
+            field_of(&spec("", &[ok, ok, ("run.iterations", "lots")])),
+            "spec.overrides[2].value"
+        );
+        assert_eq!(
+            field_of(&spec("", &[("demos.label_ratio", "1.5")])),
+            "spec.overrides[0].value"
+        );
+        assert_eq!(
+            field_of(&spec("", &[("run.transport", "\"pigeons\"")])),
+            "spec.overrides[0].value"
+        );
+        assert_eq!(field_of(&spec("", &[("", "1")])), "spec.overrides[0].key");
+        let mut s = spec("", &[]);
+        s.env = "mars".into();
+        assert_eq!(field_of(&s), "spec.env");
+        let mut s = spec("", &[]);
+        s.config_toml = "[run]\nseeds = 3\n".into();
+        assert_eq!(field_of(&s), "spec.config_toml");
+        let mut s = spec("", &[]);
+        s.config_toml = "[demos]\nlabel_ratio = 7.0\n".into();
+        assert_eq!(field_of(&s), "spec.config_toml");
+        // The later layer is blamed: the override, not the file.
+        s.overrides.push(pb::Override {
+            key: "demos.label_ratio".into(),
+            value: "9.0".into(),
+        });
+        assert_eq!(field_of(&s), "spec.overrides[0].value");
+    }
+
+    #[test]
+    fn a_valid_spec_resolves_like_ess_train_and_holds_its_cores() {
+        let v = validate(&spec("gail", &[("run.actors", "3")]), 2).unwrap();
+        assert_eq!(v.preset, "gail");
+        // Three actors on a two-core budget hold the whole budget; auto torch threads
+        // follow the cores held.
+        assert_eq!(v.cores, 2);
+        assert_eq!(v.torch_threads, Some(2));
+        assert!(
+            v.config_toml.contains("name = \"gail\""),
+            "{}",
+            v.config_toml
+        );
+        let v = validate(&spec("", &[("run.torch_threads", "1")]), 8).unwrap();
+        assert_eq!((v.cores, v.torch_threads), (1, None));
+    }
+
+    #[test]
+    fn status_codes_follow_the_error() {
+        let s: tonic::Status = Error::NotFound { id: "job-9".into() }.into();
+        assert_eq!(s.code(), tonic::Code::NotFound);
+        assert!(s.message().contains("job-9"));
+        let s: tonic::Status = Error::InvalidArgument {
+            field: "spec.preset".into(),
+            message: "unknown".into(),
+        }
+        .into();
+        assert_eq!(s.code(), tonic::Code::InvalidArgument);
+        assert!(s.message().starts_with("spec.preset: "));
+    }
+}

@@ -1,0 +1,240 @@
+//! Machine-readable training progress: `ess train --progress jsonl` writes one
+//! [`ProgressEvent`] per line on stdout (set-up messages, every iteration's metrics, the
+//! final result); `ess serve` reads them back from its job processes.
+
+use crate::train::{IterationLog, Progress, Summary};
+use ess_proto::pb;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+
+/// One line of `--progress jsonl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ProgressEvent {
+    /// A set-up phase began (`demonstrations`, `behaviour classifier`, `training`, `final
+    /// evaluation`); `training` means the first rollout starts now.
+    Message {
+        /// The phase or status text.
+        message: String,
+    },
+    /// One iteration finished.
+    Iteration(IterationRecord),
+    /// Training ended (also when stopped early); `summary.json` holds the rest.
+    Summary(FinalRecord),
+}
+
+/// An iteration's metrics: the fields of `ess.v1.IterationMetrics` (and of `metrics.csv`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[allow(missing_docs)]
+pub struct IterationRecord {
+    pub iteration: u32,
+    pub env_steps: u64,
+    pub wall_s: f64,
+    pub rollout_s: f64,
+    pub disc_s: f64,
+    pub ppo_s: f64,
+    pub disc_bce: f64,
+    pub d_acc_expert: f64,
+    pub d_acc_policy: f64,
+    pub qc_labeled: f64,
+    pub qc_generated: f64,
+    pub qeps: f64,
+    pub rim_entropy: f64,
+    pub rim_kl: f64,
+    pub contrastive: f64,
+    pub reward_mean: f64,
+    pub policy_loss: f64,
+    pub value_loss: f64,
+    pub entropy: f64,
+    pub approx_kl: f64,
+    pub prior: Vec<f32>,
+    pub nmi: Option<f64>,
+    pub ent: Option<f64>,
+    pub normalized_reward: Option<f64>,
+}
+
+impl From<&IterationLog> for IterationRecord {
+    fn from(it: &IterationLog) -> Self {
+        Self {
+            iteration: u32::try_from(it.iteration).unwrap_or(u32::MAX),
+            env_steps: it.env_steps as u64,
+            wall_s: it.wall_s,
+            rollout_s: it.rollout_s,
+            disc_s: it.disc_s,
+            ppo_s: it.ppo_s,
+            disc_bce: it.disc_bce,
+            d_acc_expert: it.d_acc_expert,
+            d_acc_policy: it.d_acc_policy,
+            qc_labeled: it.qc_labeled,
+            qc_generated: it.qc_generated,
+            qeps: it.qeps,
+            rim_entropy: it.rim_entropy,
+            rim_kl: it.rim_kl,
+            contrastive: it.contrastive,
+            reward_mean: it.reward_mean,
+            policy_loss: it.policy_loss,
+            value_loss: it.value_loss,
+            entropy: it.entropy,
+            approx_kl: it.approx_kl,
+            prior: it
+                .prior
+                .split(';')
+                .filter_map(|p| p.trim().parse().ok())
+                .collect(),
+            nmi: it.nmi,
+            ent: it.ent,
+            normalized_reward: it.normalized_reward,
+        }
+    }
+}
+
+impl From<IterationRecord> for pb::IterationMetrics {
+    fn from(r: IterationRecord) -> Self {
+        Self {
+            iteration: r.iteration,
+            env_steps: r.env_steps,
+            wall_s: r.wall_s,
+            rollout_s: r.rollout_s,
+            disc_s: r.disc_s,
+            ppo_s: r.ppo_s,
+            disc_bce: r.disc_bce,
+            d_acc_expert: r.d_acc_expert,
+            d_acc_policy: r.d_acc_policy,
+            qc_labeled: r.qc_labeled,
+            qc_generated: r.qc_generated,
+            qeps: r.qeps,
+            rim_entropy: r.rim_entropy,
+            rim_kl: r.rim_kl,
+            contrastive: r.contrastive,
+            reward_mean: r.reward_mean,
+            policy_loss: r.policy_loss,
+            value_loss: r.value_loss,
+            entropy: r.entropy,
+            approx_kl: r.approx_kl,
+            prior: r.prior,
+            nmi: r.nmi,
+            ent: r.ent,
+            normalized_reward: r.normalized_reward,
+        }
+    }
+}
+
+/// The final result of a run (the headline of `summary.json`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct FinalRecord {
+    /// Final NMI.
+    pub nmi: f64,
+    /// Final ENT.
+    pub ent: f64,
+    /// Final normalised task reward.
+    pub normalized_reward: f64,
+    /// Environment steps of training.
+    pub env_steps: u64,
+    /// Iterations run.
+    pub iterations: u32,
+    /// Wall seconds of training.
+    pub wall_seconds: f64,
+    /// Whether the run was stopped early (SIGTERM, Ctrl-C).
+    pub interrupted: bool,
+}
+
+impl From<&Summary> for FinalRecord {
+    fn from(s: &Summary) -> Self {
+        Self {
+            nmi: s.nmi,
+            ent: s.ent,
+            normalized_reward: s.normalized_reward,
+            env_steps: s.env_steps as u64,
+            iterations: u32::try_from(s.iterations).unwrap_or(u32::MAX),
+            wall_seconds: s.wall_seconds,
+            interrupted: s.interrupted,
+        }
+    }
+}
+
+/// A [`Progress`] writing [`ProgressEvent`] lines to `W` (stdout for `--progress jsonl`),
+/// flushed per line so a reader sees each event as it happens. A closed pipe is
+/// ignored: training goes on and still writes its files.
+pub struct JsonlProgress<W: Write> {
+    out: W,
+}
+
+impl<W: Write> JsonlProgress<W> {
+    /// Writes to `out`.
+    pub fn new(out: W) -> Self {
+        Self { out }
+    }
+
+    /// Writes one event line.
+    pub fn emit(&mut self, ev: &ProgressEvent) {
+        let r = serde_json::to_writer(&mut self.out, ev)
+            .map_err(std::io::Error::other)
+            .and_then(|()| self.out.write_all(b"\n"))
+            .and_then(|()| self.out.flush());
+        if let Err(e) = r {
+            tracing::debug!(error = %e, "progress line not written");
+        }
+    }
+}
+
+impl<W: Write> Progress for JsonlProgress<W> {
+    fn iteration(&mut self, it: &IterationLog) {
+        self.emit(&ProgressEvent::Iteration(it.into()));
+    }
+
+    fn message(&mut self, msg: &str) {
+        self.emit(&ProgressEvent::Message {
+            message: msg.to_string(),
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jsonl_lines_parse_back_to_the_events_written() {
+        let mut p = JsonlProgress::new(Vec::new());
+        let log = IterationLog {
+            iteration: 3,
+            env_steps: 1200,
+            disc_bce: 0.5,
+            prior: "0.25;0.75".into(),
+            nmi: Some(0.9),
+            ..Default::default()
+        };
+        p.message("training");
+        p.iteration(&log);
+        let fin = FinalRecord {
+            nmi: 0.8,
+            iterations: 3,
+            interrupted: true,
+            ..Default::default()
+        };
+        p.emit(&ProgressEvent::Summary(fin.clone()));
+        let text = String::from_utf8(p.out).unwrap();
+        let events: Vec<ProgressEvent> = text
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(events.len(), 3);
+        assert_eq!(
+            events[0],
+            ProgressEvent::Message {
+                message: "training".into()
+            }
+        );
+        let ProgressEvent::Iteration(r) = &events[1] else {
+            panic!("{events:?}")
+        };
+        assert_eq!(r.iteration, 3);
+        assert_eq!(r.env_steps, 1200);
+        assert_eq!(r.prior, vec![0.25, 0.75]);
+        assert_eq!(r.nmi, Some(0.9));
+        assert_eq!(r.ent, None);
+        let m: pb::IterationMetrics = r.clone().into();
+        assert_eq!(m.disc_bce, 0.5);
+        assert_eq!(events[2], ProgressEvent::Summary(fin));
+    }
+}
