@@ -317,6 +317,27 @@ fn sigterm_stops_training_cleanly_and_resume_finishes_the_run() {
         .map(|l| l.split(',').next().unwrap().parse().unwrap())
         .collect();
     assert_eq!(its, (1..=40).collect::<Vec<u64>>(), "{csv}");
+    // The run log reads like an uninterrupted run's: every iteration once, then the
+    // final evaluation (the interrupted run's own final evaluation is dropped).
+    let log = ess_learner::runlog::read(&out.join("run.mcap")).unwrap();
+    assert_eq!(log.truncated, None);
+    let mut logged = Vec::new();
+    let mut finals = 0;
+    for r in log.messages() {
+        match r {
+            ess_learner::runlog::Record::Metrics(m) => logged.push(u64::from(m.iteration)),
+            ess_learner::runlog::Record::EvalEpisode(e) => finals += usize::from(e.final_eval),
+            _ => {}
+        }
+    }
+    let mut want: Vec<u64> = (1..=40).collect();
+    want.push(40);
+    assert_eq!(logged, want);
+    assert_eq!(
+        finals,
+        4 * 2,
+        "one final evaluation of 4 codes x 2 episodes"
+    );
 }
 
 #[test]
