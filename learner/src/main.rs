@@ -428,7 +428,8 @@ fn train(mut args: TrainArgs) -> Result<()> {
         out.display()
     );
     if args.progress == ProgressFormat::Jsonl {
-        let mut progress = JsonlProgress::new(std::io::stdout().lock());
+        let mut progress =
+            JsonlProgress::new(std::io::stdout().lock()).stop_when_reader_gone(shutdown.clone());
         let result = match args.resume {
             Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown)?,
             None => run(&cfg, &out, &mut progress, &shutdown)?,

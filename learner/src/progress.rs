@@ -153,26 +153,52 @@ impl From<&Summary> for FinalRecord {
 }
 
 /// A [`Progress`] writing [`ProgressEvent`] lines to `W` (stdout for `--progress jsonl`),
-/// flushed per line so a reader sees each event as it happens. A closed pipe is
-/// ignored: training goes on and still writes its files.
+/// flushed per line so a reader sees each event as it happens. When the reader is gone
+/// (a broken pipe: the `ess serve` that ran the job died), it sets the flag given to
+/// [`JsonlProgress::stop_when_reader_gone`], so the run stops gracefully after the
+/// iteration (checkpoint, final evaluation, files) instead of running on unwatched;
+/// other write errors are ignored.
 pub struct JsonlProgress<W: Write> {
     out: W,
+    stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 impl<W: Write> JsonlProgress<W> {
     /// Writes to `out`.
     pub fn new(out: W) -> Self {
-        Self { out }
+        Self { out, stop: None }
+    }
+
+    /// Sets `flag` (the run's shutdown flag) once a line cannot be written because the
+    /// reader closed the pipe.
+    pub fn stop_when_reader_gone(
+        mut self,
+        flag: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    ) -> Self {
+        self.stop = Some(flag);
+        self
     }
 
     /// Writes one event line.
     pub fn emit(&mut self, ev: &ProgressEvent) {
-        let r = serde_json::to_writer(&mut self.out, ev)
-            .map_err(std::io::Error::other)
-            .and_then(|()| self.out.write_all(b"\n"))
-            .and_then(|()| self.out.flush());
+        let mut line = match serde_json::to_vec(ev) {
+            Ok(line) => line,
+            Err(e) => {
+                tracing::debug!(error = %e, "progress event not serialised");
+                return;
+            }
+        };
+        line.push(b'\n');
+        let r = self.out.write_all(&line).and_then(|()| self.out.flush());
         if let Err(e) = r {
-            tracing::debug!(error = %e, "progress line not written");
+            if e.kind() == std::io::ErrorKind::BrokenPipe
+                && let Some(flag) = &self.stop
+                && !flag.swap(true, std::sync::atomic::Ordering::SeqCst)
+            {
+                tracing::warn!("the progress reader is gone; stopping after this iteration");
+            } else {
+                tracing::debug!(error = %e, "progress line not written");
+            }
         }
     }
 }
@@ -192,6 +218,27 @@ impl<W: Write> Progress for JsonlProgress<W> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A pipe whose reader has gone.
+    struct ClosedPipe;
+    impl Write for ClosedPipe {
+        fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+            Err(std::io::ErrorKind::BrokenPipe.into())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_closed_progress_pipe_asks_the_run_to_stop() {
+        let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let mut p = JsonlProgress::new(ClosedPipe).stop_when_reader_gone(flag.clone());
+        p.message("demonstrations");
+        assert!(flag.load(std::sync::atomic::Ordering::SeqCst));
+        // Without the flag a closed pipe is only logged.
+        JsonlProgress::new(ClosedPipe).message("demonstrations");
+    }
 
     #[test]
     fn jsonl_lines_parse_back_to_the_events_written() {
