@@ -24,6 +24,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     )?;
     let grpc = std::env::var_os("CARGO_FEATURE_GRPC").is_some();
     tonic_prost_build::configure()
+        // `ess train --progress jsonl` writes it as JSON, one line per iteration.
+        .type_attribute(
+            ".ess.v1.IterationMetrics",
+            "#[derive(serde::Serialize, serde::Deserialize)] #[serde(default)]",
+        )
         .build_server(grpc)
         .build_client(grpc)
         .compile_fds(fds)?;

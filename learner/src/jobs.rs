@@ -897,7 +897,7 @@ impl Manager {
             ProgressEvent::Iteration(r) => {
                 entry.rec.iteration = r.iteration;
                 entry.rec.env_steps = r.env_steps;
-                let m: pb::IterationMetrics = r.into();
+                let m = r;
                 entry.history.push(m.clone());
                 let seq = entry.history.len() - 1;
                 if let Err(e) = persist(&entry.rec) {

@@ -18,104 +18,44 @@ pub enum ProgressEvent {
         message: String,
     },
     /// One iteration finished.
-    Iteration(IterationRecord),
+    Iteration(pb::IterationMetrics),
     /// Training ended (also when stopped early); `summary.json` holds the rest.
     Summary(FinalRecord),
 }
 
-/// An iteration's metrics: the fields of `ess.v1.IterationMetrics` (and of `metrics.csv`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[allow(missing_docs)]
-pub struct IterationRecord {
-    pub iteration: u32,
-    pub env_steps: u64,
-    pub wall_s: f64,
-    pub rollout_s: f64,
-    pub disc_s: f64,
-    pub ppo_s: f64,
-    pub disc_bce: f64,
-    pub d_acc_expert: f64,
-    pub d_acc_policy: f64,
-    pub qc_labeled: f64,
-    pub qc_generated: f64,
-    pub qeps: f64,
-    pub rim_entropy: f64,
-    pub rim_kl: f64,
-    pub contrastive: f64,
-    pub reward_mean: f64,
-    pub policy_loss: f64,
-    pub value_loss: f64,
-    pub entropy: f64,
-    pub approx_kl: f64,
-    pub prior: Vec<f32>,
-    pub nmi: Option<f64>,
-    pub ent: Option<f64>,
-    pub normalized_reward: Option<f64>,
-}
-
-impl From<&IterationLog> for IterationRecord {
-    fn from(it: &IterationLog) -> Self {
-        Self {
-            iteration: u32::try_from(it.iteration).unwrap_or(u32::MAX),
-            env_steps: it.env_steps as u64,
-            wall_s: it.wall_s,
-            rollout_s: it.rollout_s,
-            disc_s: it.disc_s,
-            ppo_s: it.ppo_s,
-            disc_bce: it.disc_bce,
-            d_acc_expert: it.d_acc_expert,
-            d_acc_policy: it.d_acc_policy,
-            qc_labeled: it.qc_labeled,
-            qc_generated: it.qc_generated,
-            qeps: it.qeps,
-            rim_entropy: it.rim_entropy,
-            rim_kl: it.rim_kl,
-            contrastive: it.contrastive,
-            reward_mean: it.reward_mean,
-            policy_loss: it.policy_loss,
-            value_loss: it.value_loss,
-            entropy: it.entropy,
-            approx_kl: it.approx_kl,
-            prior: it
-                .prior
-                .split(';')
-                .filter_map(|p| p.trim().parse().ok())
-                .collect(),
-            nmi: it.nmi,
-            ent: it.ent,
-            normalized_reward: it.normalized_reward,
-        }
-    }
-}
-
-impl From<IterationRecord> for pb::IterationMetrics {
-    fn from(r: IterationRecord) -> Self {
-        Self {
-            iteration: r.iteration,
-            env_steps: r.env_steps,
-            wall_s: r.wall_s,
-            rollout_s: r.rollout_s,
-            disc_s: r.disc_s,
-            ppo_s: r.ppo_s,
-            disc_bce: r.disc_bce,
-            d_acc_expert: r.d_acc_expert,
-            d_acc_policy: r.d_acc_policy,
-            qc_labeled: r.qc_labeled,
-            qc_generated: r.qc_generated,
-            qeps: r.qeps,
-            rim_entropy: r.rim_entropy,
-            rim_kl: r.rim_kl,
-            contrastive: r.contrastive,
-            reward_mean: r.reward_mean,
-            policy_loss: r.policy_loss,
-            value_loss: r.value_loss,
-            entropy: r.entropy,
-            approx_kl: r.approx_kl,
-            prior: r.prior,
-            nmi: r.nmi,
-            ent: r.ent,
-            normalized_reward: r.normalized_reward,
-        }
+/// The metrics of `log` as `ess.v1.IterationMetrics`: what the progress stream, the
+/// run log's `/metrics` topic and `WatchJob` carry (the one mapping from
+/// [`IterationLog`]).
+pub fn iteration_metrics(log: &IterationLog) -> pb::IterationMetrics {
+    pb::IterationMetrics {
+        iteration: u32::try_from(log.iteration).unwrap_or(u32::MAX),
+        env_steps: log.env_steps as u64,
+        wall_s: log.wall_s,
+        rollout_s: log.rollout_s,
+        disc_s: log.disc_s,
+        ppo_s: log.ppo_s,
+        disc_bce: log.disc_bce,
+        d_acc_expert: log.d_acc_expert,
+        d_acc_policy: log.d_acc_policy,
+        qc_labeled: log.qc_labeled,
+        qc_generated: log.qc_generated,
+        qeps: log.qeps,
+        rim_entropy: log.rim_entropy,
+        rim_kl: log.rim_kl,
+        contrastive: log.contrastive,
+        reward_mean: log.reward_mean,
+        policy_loss: log.policy_loss,
+        value_loss: log.value_loss,
+        entropy: log.entropy,
+        approx_kl: log.approx_kl,
+        prior: log
+            .prior
+            .split(';')
+            .filter_map(|p| p.trim().parse().ok())
+            .collect(),
+        nmi: log.nmi,
+        ent: log.ent,
+        normalized_reward: log.normalized_reward,
     }
 }
 
@@ -205,7 +145,7 @@ impl<W: Write> JsonlProgress<W> {
 
 impl<W: Write> Progress for JsonlProgress<W> {
     fn iteration(&mut self, it: &IterationLog) {
-        self.emit(&ProgressEvent::Iteration(it.into()));
+        self.emit(&ProgressEvent::Iteration(iteration_metrics(it)));
     }
 
     fn message(&mut self, msg: &str) {
@@ -280,8 +220,7 @@ mod tests {
         assert_eq!(r.prior, vec![0.25, 0.75]);
         assert_eq!(r.nmi, Some(0.9));
         assert_eq!(r.ent, None);
-        let m: pb::IterationMetrics = r.clone().into();
-        assert_eq!(m.disc_bce, 0.5);
+        assert_eq!(r.disc_bce, 0.5);
         assert_eq!(events[2], ProgressEvent::Summary(fin));
     }
 }

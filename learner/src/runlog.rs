@@ -214,12 +214,6 @@ pub fn config_record(cfg: &CheckedConfig) -> pb::RunConfig {
     }
 }
 
-/// A metrics row as its protobuf message (`/metrics`), through the one mapping the
-/// progress stream and `WatchJob` use ([`crate::progress::IterationRecord`]).
-pub fn metrics_message(log: &IterationLog) -> pb::IterationMetrics {
-    crate::progress::IterationRecord::from(log).into()
-}
-
 type McapWriter = mcap::Writer<BufWriter<File>>;
 
 /// The writer of a run log (see the module docs for topics and guarantees).
@@ -421,7 +415,7 @@ impl RunLog {
 
     /// Logs one iteration's metrics on `/metrics` and flushes.
     pub fn iteration(&mut self, log: &IterationLog) -> Result<(), RunLogError> {
-        self.record(&Record::Metrics(metrics_message(log)))?;
+        self.record(&Record::Metrics(crate::progress::iteration_metrics(log)))?;
         self.flush()
     }
 
@@ -964,7 +958,7 @@ mod tests {
             nmi: Some(0.9),
             ..Default::default()
         };
-        let m = metrics_message(&l);
+        let m = crate::progress::iteration_metrics(&l);
         assert_eq!((m.iteration, m.env_steps), (7, 700));
         assert_eq!((m.wall_s, m.disc_bce, m.rim_kl), (1.5, 0.6, 0.01));
         assert_eq!(m.prior, vec![0.25, 0.75]);
@@ -1059,10 +1053,12 @@ mod tests {
                 want.extend(episode_of(0, 2, false));
             }
         }
-        want.push(Record::Metrics(metrics_message(&IterationLog {
-            iteration: 4,
-            ..Default::default()
-        })));
+        want.push(Record::Metrics(crate::progress::iteration_metrics(
+            &IterationLog {
+                iteration: 4,
+                ..Default::default()
+            },
+        )));
         assert_eq!(got[..want.len()], want[..]);
         // The new final evaluation continues the episode numbering after the kept one.
         match &got[want.len()] {

@@ -584,6 +584,32 @@ fn run_from(
 
     progress.message("training");
     let t_train = Instant::now();
+    // Saves everything a resume needs after `$it` iterations (see `crate::checkpoint`).
+    macro_rules! save_checkpoint {
+        ($it:expr, $wall:expr) => {{
+            csv.flush()?;
+            let mut st = crate::checkpoint::TrainState {
+                format: crate::checkpoint::FORMAT,
+                iteration: $it,
+                env_steps,
+                wall_s: $wall,
+                phases: phases.clone(),
+                curve: curve.clone(),
+                pending: pending.clone(),
+                rng: crate::checkpoint::RngState::of(&rng),
+                qc_marginal: qc_marginal.clone(),
+                scaler: scaler.clone(),
+                adam_steps: Default::default(),
+                actors: actor_states(actors.as_mut()),
+            };
+            crate::checkpoint::save(
+                &ckpt_dir,
+                [&vs, &prior_vs, &dvs],
+                [&ppo.opt, &ppo.prior_opt, &dopt],
+                &mut st,
+            )?;
+        }};
+    }
     for it in iters_done + 1..=cfg.run.iterations {
         if shutdown.load(Ordering::Relaxed) {
             interrupted = true;
@@ -864,53 +890,13 @@ fn run_from(
             write_csv_row(&mut csv, &done)?;
         }
         if cfg.run.checkpoint_every > 0 && it.is_multiple_of(cfg.run.checkpoint_every) {
-            csv.flush()?;
-            let mut st = crate::checkpoint::TrainState {
-                format: crate::checkpoint::FORMAT,
-                iteration: it,
-                env_steps,
-                wall_s: wall_before + t_train.elapsed().as_secs_f64(),
-                phases: phases.clone(),
-                curve: curve.clone(),
-                pending: pending.clone(),
-                rng: crate::checkpoint::RngState::of(&rng),
-                qc_marginal: qc_marginal.clone(),
-                scaler: scaler.clone(),
-                adam_steps: Default::default(),
-                actors: actor_states(actors.as_mut()),
-            };
-            crate::checkpoint::save(
-                &ckpt_dir,
-                [&vs, &prior_vs, &dvs],
-                [&ppo.opt, &ppo.prior_opt, &dopt],
-                &mut st,
-            )?;
+            save_checkpoint!(it, wall_before + t_train.elapsed().as_secs_f64());
             last_saved = Some(it);
         }
     }
     let wall = wall_before + t_train.elapsed().as_secs_f64();
     if last_saved != Some(iters_done) {
-        csv.flush()?;
-        let mut st = crate::checkpoint::TrainState {
-            format: crate::checkpoint::FORMAT,
-            iteration: iters_done,
-            env_steps,
-            wall_s: wall,
-            phases: phases.clone(),
-            curve: curve.clone(),
-            pending: pending.clone(),
-            rng: crate::checkpoint::RngState::of(&rng),
-            qc_marginal: qc_marginal.clone(),
-            scaler: scaler.clone(),
-            adam_steps: Default::default(),
-            actors: actor_states(actors.as_mut()),
-        };
-        crate::checkpoint::save(
-            &ckpt_dir,
-            [&vs, &prior_vs, &dvs],
-            [&ppo.opt, &ppo.prior_opt, &dopt],
-            &mut st,
-        )?;
+        save_checkpoint!(iters_done, wall);
     }
 
     progress.message("final evaluation");
