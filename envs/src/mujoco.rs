@@ -4,7 +4,7 @@
 
 use mujoco_rs::prelude::{MjData, MjModel};
 
-use crate::env::EnvError;
+use crate::env::{EnvError, StateReader, StateWriter};
 
 /// The MuJoCo state an env owns, with its model.
 pub(crate) type Data = MjData<Box<MjModel>>;
@@ -34,6 +34,48 @@ pub(crate) fn set_physics_state(data: &mut Data, state: &[f64], env: &str) -> Re
         })?;
     data.forward_kinematics();
     Ok(())
+}
+
+/// [`crate::Env::state`] of an arm env (Reacher, Pusher): `[integration state, last
+/// action, steps, started, done]`.
+pub(crate) fn arm_state(
+    data: &Data,
+    last_action: &[f64],
+    steps: usize,
+    started: bool,
+    done: bool,
+) -> Vec<f64> {
+    let mut physics = Vec::new();
+    physics_state(data, &mut physics);
+    StateWriter::default()
+        .put(&physics)
+        .put(last_action)
+        .count(steps)
+        .flag(started)
+        .flag(done)
+        .finish()
+}
+
+/// Restores an [`arm_state`] vector: the physics into `data`, the action into
+/// `last_action`; returns `(steps, started, done)`. Nothing changes when the vector is
+/// refused for its length or values.
+pub(crate) fn set_arm_state(
+    data: &mut Data,
+    env: &str,
+    state: &[f64],
+    last_action: &mut [f64],
+    max_steps: usize,
+) -> Result<(usize, bool, bool), EnvError> {
+    let n = physics_state_len(data);
+    let mut r = StateReader::new(env, state, n + last_action.len() + 3)?;
+    let physics = r.take(n);
+    let action = r.take(last_action.len());
+    let steps = r.count("steps", max_steps)?;
+    let started = r.flag("started")?;
+    let done = r.flag("done")?;
+    set_physics_state(data, physics, env)?;
+    last_action.copy_from_slice(action);
+    Ok((steps, started, done))
 }
 
 /// [`EnvError::Model`] with `reason`.

@@ -45,8 +45,8 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StateReader, StateWriter, StepOutcome, check_action,
-    check_can_step, check_obs_len,
+    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_can_step,
+    check_obs_len,
 };
 use crate::mujoco;
 
@@ -435,30 +435,23 @@ impl Env for Reacher {
 
     /// `[MuJoCo integration state, last action (2), steps, started, done]`.
     fn state(&self) -> Vec<f64> {
-        let mut physics = Vec::new();
-        mujoco::physics_state(&self.data, &mut physics);
-        StateWriter::default()
-            .put(&physics)
-            .put(&self.last_action)
-            .count(self.steps)
-            .flag(self.started)
-            .flag(self.done)
-            .finish()
+        mujoco::arm_state(
+            &self.data,
+            &self.last_action,
+            self.steps,
+            self.started,
+            self.done,
+        )
     }
 
     fn set_state(&mut self, state: &[f64]) -> Result<(), EnvError> {
-        let n = mujoco::physics_state_len(&self.data);
-        let mut r = StateReader::new(&self.spec.name, state, n + 5)?;
-        let physics = r.take(n);
-        let last_action = [r.scalar(), r.scalar()];
-        let steps = r.count("steps", self.cfg.max_steps)?;
-        let started = r.flag("started")?;
-        let done = r.flag("done")?;
-        mujoco::set_physics_state(&mut self.data, physics, &self.spec.name)?;
-        self.last_action = last_action;
-        self.steps = steps;
-        self.started = started;
-        self.done = done;
+        (self.steps, self.started, self.done) = mujoco::set_arm_state(
+            &mut self.data,
+            &self.spec.name,
+            state,
+            &mut self.last_action,
+            self.cfg.max_steps,
+        )?;
         Ok(())
     }
 
