@@ -16,7 +16,7 @@
 //! x-z; Humanoid: root x-y).
 
 use crate::runlog::{Record, RunLogContents, RunLogError, read};
-use ess_envs::{Env, EnvError, Pusher, PusherConfig, Reacher, ReacherConfig, make_plain_env};
+use ess_envs::{Env, EnvError, Pusher, PusherConfig, Reacher, ReacherConfig, make_env};
 use ess_proto::pb;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -256,7 +256,10 @@ pub fn replay(rec: &Recording, episode: u32) -> Result<(ReplayReport, Trajectory
     }
     let env_name = &rec.config.env;
     let n_modes = rec.config.n_modes as usize;
-    let mut env = make_plain_env(env_name, n_modes).map_err(env_err(format!(
+    // The env exactly as training and the actors build it (`make_env`: for Pusher,
+    // Walker2d and Humanoid the expert-driven wrapper, whose state carries the last
+    // observation after the simulator's), so the recorded states fit it.
+    let mut env: Box<dyn Env> = make_env(env_name, n_modes).map_err(env_err(format!(
         "building env `{env_name}` with {n_modes} modes"
     )))?;
     let spec = env.spec().clone();
@@ -398,7 +401,9 @@ fn body_path_name(env: &str) -> &'static str {
 }
 
 /// Body paths of a MuJoCo trajectory (recorded states), by restoring each state into
-/// the env where a body position needs forward kinematics.
+/// the env where a body position needs forward kinematics. A recorded state may be the
+/// expert-driven wrapper's (`make_env`: the plain env's state followed by the last
+/// observation), so only its plain-env prefix is restored.
 fn body_paths(traj: &Trajectory) -> Vec<(Vec<(f32, f32)>, usize)> {
     let root = |i: usize, j: usize| -> Vec<(f32, f32)> {
         traj.recorded
@@ -416,11 +421,12 @@ fn body_paths(traj: &Trajectory) -> Vec<(Vec<(f32, f32)>, usize)> {
             }) else {
                 return Vec::new();
             };
+            let n = env.state().len();
             let tip: Vec<(f32, f32)> = traj
                 .recorded
                 .iter()
                 .filter_map(|s| {
-                    env.set_state(s).ok()?;
+                    env.set_state(s.get(..n)?).ok()?;
                     let p = env.fingertip();
                     Some((p[0] as f32, p[1] as f32))
                 })
@@ -434,10 +440,13 @@ fn body_paths(traj: &Trajectory) -> Vec<(Vec<(f32, f32)>, usize)> {
             }) else {
                 return Vec::new();
             };
+            let n = env.state().len();
             let mut tip = Vec::new();
             let mut object = Vec::new();
             for s in &traj.recorded {
-                if env.set_state(s).is_ok() {
+                if let Some(s) = s.get(..n)
+                    && env.set_state(s).is_ok()
+                {
                     let p = env.fingertip();
                     let o = env.object_position();
                     tip.push((p[0] as f32, p[1] as f32));
@@ -455,7 +464,6 @@ mod tests {
     use super::*;
     use crate::runlog::RunLog;
     use ess_actor::{LatentSpec, PolicyWeights, eval_episode};
-    use ess_envs::make_env;
     use ess_proto::config::{ConfigBuilder, LatentPrior};
     use ess_proto::{Mlp, MlpLayout};
 
@@ -537,6 +545,21 @@ mod tests {
     }
 
     #[test]
+    fn pusher_episodes_replay_within_1e_6_of_the_recording() {
+        replays_within_tolerance("pusher", 6);
+    }
+
+    #[test]
+    fn walker2d_episodes_replay_within_1e_6_of_the_recording() {
+        replays_within_tolerance("walker2d", 3);
+    }
+
+    #[test]
+    fn humanoid_episodes_replay_within_1e_6_of_the_recording() {
+        replays_within_tolerance("humanoid", 3);
+    }
+
+    #[test]
     fn a_changed_action_shows_up_as_a_deviation() {
         let dir = tempfile::tempdir().unwrap();
         let path = record_episodes(dir.path(), "reacher", 2, 1);
@@ -578,6 +601,7 @@ mod tests {
             env.joint_angles().to_vec(),
             traj.recorded[5][1..1 + qpos_len("reacher").unwrap()].to_vec()
         );
+        assert_eq!(body_paths(&traj)[0].0.len(), traj.recorded.len());
         let out = dir.path().join("ep1.png");
         let files = plot(&out, &traj, "reacher episode 1").unwrap();
         assert_eq!(files, vec![out.clone(), dir.path().join("ep1-path.png")]);
@@ -588,5 +612,27 @@ mod tests {
                 f.display()
             );
         }
+    }
+
+    #[test]
+    fn pusher_plot_draws_the_fingertip_and_object_paths_of_every_state() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = record_episodes(dir.path(), "pusher", 6, 1);
+        let rec = load(&path).unwrap();
+        let (_, traj) = replay(&rec, 2).unwrap();
+        let paths = body_paths(&traj);
+        assert_eq!(paths.len(), 2);
+        for (p, _) in &paths {
+            assert_eq!(p.len(), traj.recorded.len());
+        }
+        // The fingertip moved.
+        let tip = &paths[0].0;
+        assert!(
+            (tip[0].0 - tip[tip.len() - 1].0).abs() + (tip[0].1 - tip[tip.len() - 1].1).abs()
+                > 1e-3
+        );
+        let out = dir.path().join("ep2.png");
+        let files = plot(&out, &traj, "pusher episode 2").unwrap();
+        assert_eq!(files, vec![out.clone(), dir.path().join("ep2-path.png")]);
     }
 }
