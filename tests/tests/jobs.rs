@@ -426,7 +426,7 @@ async fn calls_without_the_right_token_are_unauthenticated() {
         .unwrap_err();
     assert_eq!(e.code(), Code::Unauthenticated);
     // Health stays open.
-    let mut h = tonic_health::pb::health_client::HealthClient::new(channel);
+    let mut h = tonic_health::pb::health_client::HealthClient::new(channel.clone());
     let r = h
         .check(tonic_health::pb::HealthCheckRequest {
             service: "ess.v1.JobService".into(),
@@ -438,6 +438,9 @@ async fn calls_without_the_right_token_are_unauthenticated() {
         r.status(),
         tonic_health::pb::health_check_response::ServingStatus::Serving
     );
+    // So does reflection (what grpcurl and other generic clients discover the API
+    // with): it lists JobService and serves the file declaring it.
+    assert_reflection_serves_the_job_service(channel.clone()).await;
     // The CLI: the token file works; a wrong one is an input error naming the code.
     let bad = dir.path().join("bad");
     std::fs::write(&bad, "nope").unwrap();
@@ -714,4 +717,66 @@ async fn the_server_stops_its_jobs_on_sigterm_and_leaves_no_process_behind() {
     assert!(j.error.contains("server exited"), "{}", j.error);
     assert!(children_of(server.pid()).is_empty());
     assert!(is_running(server.pid()));
+}
+
+/// One reflection stream: `list_services` names `ess.v1.JobService`, and
+/// `file_containing_symbol` answers with the descriptor of `ess/v1/jobs.proto`.
+async fn assert_reflection_serves_the_job_service(channel: Channel) {
+    use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
+    use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;
+    use tonic_reflection::pb::v1::server_reflection_response::MessageResponse;
+    use tonic_reflection::pb::v1::{ServerReflectionRequest, ServerReflectionResponse};
+    let req = |m: MessageRequest| ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(m),
+    };
+    let requests = vec![
+        req(MessageRequest::ListServices(String::new())),
+        req(MessageRequest::FileContainingSymbol(
+            "ess.v1.JobService".into(),
+        )),
+    ];
+    let mut c = ServerReflectionClient::new(channel);
+    let mut stream = c
+        .server_reflection_info(tokio_stream::iter(requests))
+        .await
+        .expect("reflection call")
+        .into_inner();
+    let mut answers: Vec<ServerReflectionResponse> = Vec::new();
+    while let Some(r) = stream.message().await.expect("reflection answer") {
+        answers.push(r);
+    }
+    assert_eq!(answers.len(), 2, "{answers:?}");
+    match &answers[0].message_response {
+        Some(MessageResponse::ListServicesResponse(l)) => {
+            let names: Vec<&str> = l.service.iter().map(|s| s.name.as_str()).collect();
+            assert!(names.contains(&"ess.v1.JobService"), "{names:?}");
+        }
+        other => panic!("list_services answered {other:?}"),
+    }
+    match &answers[1].message_response {
+        Some(MessageResponse::FileDescriptorResponse(f)) => {
+            let files: Vec<prost_types::FileDescriptorProto> = f
+                .file_descriptor_proto
+                .iter()
+                .map(|b| prost::Message::decode(b.as_slice()).expect("a FileDescriptorProto"))
+                .collect();
+            let jobs = files
+                .iter()
+                .find(|f| f.name() == "ess/v1/jobs.proto")
+                .unwrap_or_else(|| {
+                    panic!(
+                        "no ess/v1/jobs.proto in {:?}",
+                        files.iter().map(|f| f.name()).collect::<Vec<_>>()
+                    )
+                });
+            let svc: Vec<&str> = jobs.service.iter().map(|s| s.name()).collect();
+            assert_eq!(svc, ["JobService"]);
+            let methods: Vec<&str> = jobs.service[0].method.iter().map(|m| m.name()).collect();
+            for m in ["SubmitJob", "WatchJob", "StopJob", "ResumeJob"] {
+                assert!(methods.contains(&m), "{m} missing from {methods:?}");
+            }
+        }
+        other => panic!("file_containing_symbol answered {other:?}"),
+    }
 }
