@@ -43,7 +43,7 @@ use ess_proto::shm::{
 use ess_proto::weights::MlpLayout;
 use ess_proto::{Mlp, Step, StepSink};
 use iceoryx2::node::NodeView;
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -582,10 +582,12 @@ pub fn run_actor(
         if ports.last_beat.elapsed() >= HEARTBEAT_PERIOD {
             ports.beat(Status::IDLE)?;
         }
-        ports
-            .wake_me
-            .timed_wait(|_| {}, HEARTBEAT_PERIOD)
-            .map_err(ipc("wait", "wake-actors"))?;
+        match ports.wake_me.timed_wait(|_| {}, HEARTBEAT_PERIOD) {
+            // A signal cut the wait short (the actor's own handling decides what it
+            // means); waking early is harmless.
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+            Err(e) => return Err(ipc("wait", "wake-actors")(e)),
+        }
     }
 }
 

@@ -42,7 +42,7 @@ use ess_actor::{
 };
 use ess_proto::Chunk;
 use ess_proto::shm::{read_chunk, read_episode, run_id_hash, write_weights};
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -397,9 +397,12 @@ impl ShmActors {
     /// Waits up to half a heartbeat period for an actor's event, then takes in every
     /// status (heartbeats, exits) that arrived; returns the time it did so.
     fn wait_and_drain_status(&mut self) -> Result<Instant, ActorError> {
-        self.wake_me
-            .timed_wait(|_| {}, HEARTBEAT_PERIOD / 2)
-            .map_err(|e| transport(format!("waiting for actors: {e:?}")))?;
+        match self.wake_me.timed_wait(|_| {}, HEARTBEAT_PERIOD / 2) {
+            // A signal (SIGTERM, Ctrl-C) cut the wait short: the learner's handler has
+            // recorded it and the iteration still finishes, so this is a wake-up.
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+            Err(e) => return Err(transport(format!("waiting for actors: {e:?}"))),
+        }
         let now = Instant::now();
         self.drain_status(now)?;
         Ok(now)
