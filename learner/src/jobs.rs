@@ -11,6 +11,7 @@
 //! - **Core budget**: a job holds `max(run.actors, run.torch_threads, 1)` cores (at
 //!   most the whole budget) while it runs; a job with `run.torch_threads = 0` (auto) is
 //!   given `torch_threads = cores` so that it does not spread over the whole machine.
+//!   With the default `run.actors` (one per core) a job holds the whole budget.
 //!   Queued jobs start in submission order (FIFO; a large job at the head waits rather
 //!   than being overtaken).
 //! - **Stop**: SIGTERM to the child, which finishes its iteration, checkpoints, writes
@@ -1142,7 +1143,9 @@ mod tests {
 
     #[test]
     fn a_valid_spec_resolves_like_ess_train_and_holds_its_cores() {
-        let v = validate(&spec("gail", &[("run.actors", "3")]), 2).unwrap();
+        // Threads: a unit test has no `ess-actor` binary beside it to validate.
+        let threads = ("run.transport", "\"threads\"");
+        let v = validate(&spec("gail", &[("run.actors", "3"), threads]), 2).unwrap();
         assert_eq!(v.preset, "gail");
         // Three actors on a two-core budget hold the whole budget; auto torch threads
         // follow the cores held.
@@ -1153,8 +1156,18 @@ mod tests {
             "{}",
             v.config_toml
         );
-        let v = validate(&spec("", &[("run.torch_threads", "1")]), 8).unwrap();
+        let v = validate(
+            &spec(
+                "",
+                &[("run.torch_threads", "1"), ("run.actors", "1"), threads],
+            ),
+            8,
+        )
+        .unwrap();
         assert_eq!((v.cores, v.torch_threads), (1, None));
+        // By default a job has an actor per core of the machine, and holds them.
+        let v = validate(&spec("", &[threads]), 64).unwrap();
+        assert_eq!(v.cores, ess_proto::config::default_actors());
     }
 
     #[test]

@@ -149,7 +149,10 @@ struct TrainArgs {
     #[arg(long)]
     print_config: bool,
     /// Run N actors as `ess-actor` processes over iceoryx2 shared memory (sets
-    /// run.actors=N, run.transport="processes"); 0 keeps the in-process threads.
+    /// run.actors=N, run.transport="processes"; the default is one per core). 0 runs
+    /// one actor as a thread of this process instead (run.actors=1,
+    /// run.transport="threads"): the single-process path, whose --resume is
+    /// bit-identical.
     #[arg(long, value_name = "N")]
     actors: Option<usize>,
     /// Continue the run in DIR from its latest checkpoint, with the configuration it
@@ -377,7 +380,10 @@ impl Progress for CliProgress {
 
 fn train(mut args: TrainArgs) -> Result<()> {
     match args.actors {
-        Some(0) => args.config.set.push("run.transport=\"threads\"".into()),
+        Some(0) => {
+            args.config.set.push("run.actors=1".into());
+            args.config.set.push("run.transport=\"threads\"".into());
+        }
         Some(n) => {
             args.config.set.push(format!("run.actors={n}"));
             args.config.set.push("run.transport=\"processes\"".into());

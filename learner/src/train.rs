@@ -1121,6 +1121,8 @@ mod tests {
         let mut b = ConfigBuilder::new();
         for kv in [
             "run.iterations=3",
+            "run.transport=\"threads\"",
+            "run.actors=1",
             "run.eval_every=2",
             "run.rollout_steps=200",
             "disc.steps=2",
@@ -1168,6 +1170,7 @@ mod tests {
         let small = || {
             let mut b = ConfigBuilder::new();
             b.set("run.iterations=2").expect("set");
+            b.set("run.transport=\"threads\"").expect("set");
             b.build().expect("config")
         };
         let dir = tempfile::tempdir().expect("tmp");

@@ -50,6 +50,8 @@ fn small_config(extra: &[&str]) -> CheckedConfig {
         "run.reference_episodes=2",
         "demos.majority_episodes=4",
         "run.actors=2",
+        // Threads: their mid-episode state is checkpointed, so resume is bit-identical.
+        "run.transport=\"threads\"",
         "run.torch_threads=1",
     ]
     .iter()

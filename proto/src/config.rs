@@ -82,11 +82,12 @@ pub enum LatentPrior {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ActorTransport {
-    /// Threads of the learner process (the in-process path and test double).
-    #[default]
+    /// Threads of the learner process (the in-process path and test double;
+    /// `ess train --actors 0`).
     Threads,
-    /// `ess-actor` processes feeding the learner over iceoryx2 shared memory
-    /// (`ess train --actors N`).
+    /// `ess-actor` processes feeding the learner over iceoryx2 shared memory (the
+    /// default; `ess train --actors N`).
+    #[default]
     Processes,
 }
 
@@ -350,6 +351,15 @@ impl Default for DiscConfig {
     }
 }
 
+/// Default `run.actors`: one per core (`std::thread::available_parallelism`), at
+/// most 256 (the configured maximum), at least 1.
+pub fn default_actors() -> usize {
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
+        .clamp(1, 256)
+}
+
 /// The run: budget, seed, evaluation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -360,16 +370,20 @@ pub struct RunConfig {
     pub iterations: usize,
     /// Environment steps per iteration (paper code: 5000).
     pub rollout_steps: usize,
-    /// Actors, each stepping one environment (threads or processes, see `transport`).
-    /// Actor `i` seeds its random stream the same way on both transports.
+    /// Actors, each stepping one environment (threads or processes, see `transport`);
+    /// default: one per core of this machine ([`default_actors`]), so a run's numbers
+    /// depend on the machine unless `actors` is given. Actor `i` seeds its random
+    /// stream the same way on both transports.
     pub actors: usize,
-    /// Where the actors run: `threads` of the learner (default) or `processes`
-    /// (`ess-actor` over iceoryx2 shared memory; `ess train --actors N` selects it).
+    /// Where the actors run: `processes` (default: `ess-actor` over iceoryx2 shared
+    /// memory) or `threads` of the learner (the single-process path; `ess train
+    /// --actors 0`).
     pub transport: ActorTransport,
     /// Seconds without a heartbeat after which an actor process counts as hung and is
     /// restarted (actors beat every 0.2 s, also while collecting).
     pub actor_timeout_s: f64,
-    /// libtorch intra-op threads (0: one per core not used by actors).
+    /// libtorch intra-op threads (0: one per core; the actors wait while the learner
+    /// updates, so they do not compete for them).
     pub torch_threads: usize,
     /// Evaluate every this many iterations (0: only at the end).
     pub eval_every: usize,
@@ -399,8 +413,8 @@ impl Default for RunConfig {
             seed: 0,
             iterations: 300,
             rollout_steps: 5000,
-            actors: 1,
-            transport: ActorTransport::Threads,
+            actors: default_actors(),
+            transport: ActorTransport::Processes,
             actor_timeout_s: 3.0,
             torch_threads: 0,
             eval_every: 25,

@@ -266,7 +266,7 @@ fn one_actor_process_trains_to_the_same_numbers_as_one_thread() {
             String::from_utf8_lossy(&o.stderr)
         );
     };
-    run(&thr, &[]);
+    run(&thr, &["--actors", "0"]);
     run(&prc, &["--actors", "1"]);
     let (a, b) = (summary(&thr), summary(&prc));
     for key in ["nmi", "ent", "normalized_reward", "env_steps"] {

@@ -295,7 +295,11 @@ async fn a_stopped_job_resumes_to_the_result_of_an_uninterrupted_one() {
     let dir = tempfile::tempdir().unwrap();
     let server = Server::start(&dir.path().join("data"), &["--cores", "2"]);
     let mut c = server.client().await;
-    let o = tiny(30, 1000);
+    // The single-process path: its resume is bit-identical (actor processes restart
+    // their episodes on resume).
+    let mut o = tiny(30, 1000);
+    o.push(("run.transport".into(), "\"threads\"".into()));
+    o.push(("run.actors".into(), "1".into()));
     let submit = |c: &mut JobServiceClient<Channel>| {
         let s = spec(11, &o);
         let mut c = c.clone();
