@@ -32,8 +32,9 @@ pub trait RolloutSource: Send {
         None
     }
 
-    /// Every actor's complete state between two rollouts, in actor order (checkpoints).
-    fn snapshot(&mut self) -> Result<Vec<WorkerState>, ActorError>;
+    /// Every actor's complete state between two rollouts, in actor order (checkpoints);
+    /// `None` where the transport does not carry actor states (actor processes).
+    fn snapshot(&mut self) -> Result<Option<Vec<WorkerState>>, ActorError>;
 
     /// Restores one [`RolloutSource::snapshot`] state per actor, so that the next
     /// rollouts continue those the snapshot was taken between.
@@ -190,7 +191,7 @@ impl RolloutSource for ThreadedActors {
             .collect()
     }
 
-    fn snapshot(&mut self) -> Result<Vec<WorkerState>, ActorError> {
+    fn snapshot(&mut self) -> Result<Option<Vec<WorkerState>>, ActorError> {
         self.round(self.handles.iter().map(|_| Job::Snapshot))?
             .into_iter()
             .enumerate()
@@ -198,7 +199,8 @@ impl RolloutSource for ThreadedActors {
                 Reply::State(s) => Ok(*s),
                 _ => Err(unexpected(i)),
             })
-            .collect()
+            .collect::<Result<_, _>>()
+            .map(Some)
     }
 
     fn restore(&mut self, states: &[WorkerState]) -> Result<(), ActorError> {

@@ -612,12 +612,11 @@ impl RolloutSource for ShmActors {
         Some(self)
     }
 
-    /// Not available: an actor process's state would have to cross the transport,
-    /// which has no message for it yet. Checkpoints of such runs hold no actor states.
-    fn snapshot(&mut self) -> Result<Vec<ess_actor::WorkerState>, ActorError> {
-        Err(transport(
-            "actor processes cannot hand their state to a checkpoint".into(),
-        ))
+    /// `None`: an actor process's state would have to cross the transport, which has
+    /// no message for it yet. Checkpoints of such runs hold no actor states, and a
+    /// resumed run's actors start fresh episodes (said when resuming).
+    fn snapshot(&mut self) -> Result<Option<Vec<ess_actor::WorkerState>>, ActorError> {
+        Ok(None)
     }
 
     /// Not available (see [`ShmActors::snapshot`]).

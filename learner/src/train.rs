@@ -1074,11 +1074,12 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
-/// The actors' states for a checkpoint; none (logged) where the transport cannot give
-/// them.
+/// The actors' states for a checkpoint; none where the transport does not carry them
+/// (actor processes; `--resume` says so) or could not give them (logged).
 fn actor_states(actors: &mut dyn RolloutSource) -> Vec<crate::checkpoint::SavedWorker> {
     match actors.snapshot() {
-        Ok(states) => states.iter().map(Into::into).collect(),
+        Ok(Some(states)) => states.iter().map(Into::into).collect(),
+        Ok(None) => Vec::new(),
         Err(e) => {
             tracing::warn!(error = %e, "checkpoint without actor states");
             Vec::new()
