@@ -185,6 +185,28 @@ fn every_preset_trains_a_few_iterations_and_writes_its_outputs() {
 }
 
 #[test]
+fn actors_default_to_one_process_per_core_and_0_is_one_thread() {
+    let out = |args: &[&str]| String::from_utf8_lossy(&ess(args).stdout).into_owned();
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let default = out(&["train", "--print-config"]);
+    assert!(
+        default.contains(&format!("actors = {cores}\n"))
+            && default.contains("transport = \"processes\""),
+        "{default}"
+    );
+    let zero = out(&["train", "--actors", "0", "--print-config"]);
+    assert!(
+        zero.contains("actors = 1\n") && zero.contains("transport = \"threads\""),
+        "{zero}"
+    );
+    let three = out(&["train", "--actors", "3", "--print-config"]);
+    assert!(
+        three.contains("actors = 3\n") && three.contains("transport = \"processes\""),
+        "{three}"
+    );
+}
+
+#[test]
 fn env_defaults_apply_under_the_preset_and_set_overrides_them() {
     let out = |args: &[&str]| String::from_utf8_lossy(&ess(args).stdout).into_owned();
     let reacher = out(&["train", "--env", "reacher", "--print-config"]);
