@@ -33,6 +33,10 @@
 //! `r_k = 5 * [healthy] + 1.25 * v_k - 0.1 |ctrl|^2 - min(5e-7 |cfrc_ext|^2, 10)`,
 //! with `vx` the x-velocity of the centre of mass (mass-weighted body `xipos`) over the
 //! step, as v5 computes it.
+//! That is the evaluation reward ([`Env::mode_rewards`]). The *task* reward experts
+//! train on ([`Env::task_rewards`]) is the same with `1.25` replaced by
+//! `task_forward_weight` (4 by default): under v5's weights a PPO expert learns to
+//! stand long before it learns to move, since standing alone earns 5 per step.
 
 use std::fmt;
 
@@ -173,6 +177,12 @@ pub struct HumanoidConfig {
     pub healthy_reward: f64,
     /// Weight of the mode velocity in the reward.
     pub forward_weight: f64,
+    /// Weight of the mode velocity in the *task* reward that experts train on
+    /// ([`Env::task_rewards`]); the evaluation reward keeps `forward_weight`. Larger
+    /// than v5's 1.25 so that moving outweighs merely standing: with 1.25 a standing
+    /// policy earns 5 of the 6.25 that running at 1 m/s pays, and PPO's experts only
+    /// stood (bench/mujoco.md).
+    pub task_forward_weight: f64,
     /// Weight of the control cost `|ctrl|^2`.
     pub ctrl_cost_weight: f64,
     /// Weight of the contact cost `|cfrc_ext|^2`.
@@ -200,6 +210,7 @@ impl Default for HumanoidConfig {
             frame_skip: 5,
             healthy_reward: 5.0,
             forward_weight: 1.25,
+            task_forward_weight: 4.0,
             ctrl_cost_weight: 0.1,
             contact_cost_weight: 5e-7,
             contact_cost_max: 10.0,
@@ -220,6 +231,7 @@ impl HumanoidConfig {
         check_positive("frame_skip", self.frame_skip)?;
         check_non_negative("healthy_reward", self.healthy_reward)?;
         check_non_negative("forward_weight", self.forward_weight)?;
+        check_non_negative("task_forward_weight", self.task_forward_weight)?;
         check_non_negative("ctrl_cost_weight", self.ctrl_cost_weight)?;
         check_non_negative("contact_cost_weight", self.contact_cost_weight)?;
         check_non_negative("contact_cost_max", self.contact_cost_max)?;
@@ -245,6 +257,8 @@ pub struct Humanoid {
     spec: EnvSpec,
     sim: Sim,
     weights: RewardWeights,
+    /// Weights of the task reward experts train on (`task_forward_weight`).
+    task_weights: RewardWeights,
     /// Body masses over the total mass, for the centre of mass.
     mass_fraction: Vec<f64>,
     /// Reward terms of the last step (the start state's before the first).
@@ -323,11 +337,16 @@ impl Humanoid {
             healthy_reward: cfg.healthy_reward,
             forward_weight: cfg.forward_weight,
         };
+        let task_weights = RewardWeights {
+            forward_weight: cfg.task_forward_weight,
+            ..weights
+        };
         Ok(Self {
             cfg,
             spec,
             sim,
             weights,
+            task_weights,
             mass_fraction,
             terms: RewardTerms::default(),
             com_x: 0.0,
@@ -452,6 +471,11 @@ impl Env for Humanoid {
 
     fn mode_rewards(&self, out: &mut [f32]) {
         self.terms.write_rewards(&self.weights, out);
+    }
+
+    /// The evaluation reward with the mode velocity weighted by `task_forward_weight`.
+    fn task_rewards(&self, out: &mut [f32]) {
+        self.terms.write_rewards(&self.task_weights, out);
     }
 
     fn forward_velocity(&self) -> Option<f64> {
@@ -695,9 +719,12 @@ mod tests {
             assert_eq!(env.contact_cost(), 0.0);
             let want = 5.0 + 1.25 * v.abs();
             assert!((f64::from(r[best]) - want).abs() < 1e-4, "{r:?} vs {want}");
+            // The task reward weighs the velocity by task_forward_weight (4) instead.
             let mut t = [0.0f32; 3];
             env.task_rewards(&mut t);
-            assert_eq!(r, t);
+            let want = 5.0 + 4.0 * v.abs();
+            assert!((f64::from(t[best]) - want).abs() < 1e-4, "{t:?} vs {want}");
+            assert!((f64::from(t[2] - t[worst])).abs() < 1e-5, "vx {vx}: {t:?}");
         }
     }
 

@@ -14,9 +14,11 @@
 //!
 //! with `vx` the x-velocity of the step as v5 computes it (the torso's for Walker2d,
 //! the centre of mass's for Humanoid), `v_0 = vx`, `v_1 = -vx` and `v_2 = -|vx|`.
-//! `contact_cost` is zero for Walker2d. The same formula is both the evaluation reward
-//! ([`Env::mode_rewards`](crate::Env::mode_rewards)) and the task reward experts train
-//! on ([`Env::task_rewards`](crate::Env::task_rewards) keeps its default): balancing
+//! `contact_cost` is zero for Walker2d. For Walker2d the same formula is both the
+//! evaluation reward ([`Env::mode_rewards`](crate::Env::mode_rewards)) and the task
+//! reward experts train on ([`Env::task_rewards`](crate::Env::task_rewards) keeps its
+//! default); Humanoid trains its experts with a larger velocity weight
+//! ([`crate::humanoid`]'s `task_forward_weight`). Balancing
 //! is learnable without shaping, since standing still and upright already maximises
 //! it, and `-|vx|` summed over an episode is the distance wandered, so it also
 //! penalises drift.
