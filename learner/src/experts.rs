@@ -13,6 +13,8 @@
 //! Outputs: the expert file ([`ess_envs::ExpertPolicy`]), written atomically after
 //! every iteration, and beside it `<file>.state.safetensors` (policy + value
 //! variables) and `<file>.csv` (one row per iteration), so `--resume` continues a run.
+//! `--init-from FILE` starts a new expert from another expert of the same env (its
+//! policy, value and normaliser, and its step count), e.g. a runner from a balancer.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -61,6 +63,10 @@ pub struct ExpertTrainConfig {
     pub out: PathBuf,
     /// Continue from `out` and its state file instead of starting afresh.
     pub resume: bool,
+    /// Start from this expert file (any mode of the same env) and its state file: its
+    /// policy, value, normaliser and step count, as `resume` would take them from `out`,
+    /// but training `mode` into `out` with a fresh CSV. Exclusive with `resume`.
+    pub init_from: Option<PathBuf>,
 }
 
 /// One iteration's report.
@@ -203,10 +209,19 @@ pub fn train_expert(
     let mut stats = RunningStats::new(od);
     let mut env_steps = 0u64;
     let mut first_iteration = 1;
-    if cfg.resume {
-        let old = ExpertPolicy::load(&cfg.out)?;
-        old.check_fits(&spec, cfg.mode, &cfg.out)?;
-        let state = state_path(&cfg.out);
+    if cfg.resume && cfg.init_from.is_some() {
+        bail!("resume and init_from exclude each other");
+    }
+    let source = match &cfg.init_from {
+        Some(p) => Some(p.as_path()),
+        None => cfg.resume.then_some(cfg.out.as_path()),
+    };
+    if let Some(src) = source {
+        let old = ExpertPolicy::load(src)?;
+        // Resuming continues the same mode; a warm start may come from any mode.
+        let mode = if cfg.resume { cfg.mode } else { old.meta.mode };
+        old.check_fits(&spec, mode, src)?;
+        let state = state_path(src);
         vs.load(&state)
             .with_context(|| format!("loading training state {}", state.display()))?;
         let (m, s) = old.obs_stats();

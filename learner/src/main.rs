@@ -99,8 +99,13 @@ enum ExpertsCmd {
         #[arg(long)]
         out: Option<PathBuf>,
         /// Continue training the expert at --out from its saved state.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "init_from")]
         resume: bool,
+        /// Start from another expert of the same env (any mode; its state file must sit
+        /// beside it): its policy, value, normaliser and step count, so --steps counts
+        /// its steps too. E.g. a running Humanoid from the balancing one.
+        #[arg(long, value_name = "EXPERT")]
+        init_from: Option<PathBuf>,
     },
     /// Each mode's expert against uniformly random actions on its task reward.
     Eval {
@@ -537,6 +542,7 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
             steps,
             out,
             resume,
+            init_from,
         } => {
             let cfg = resolve(&config)?;
             if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
@@ -559,6 +565,30 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
                     out.display()
                 )));
             }
+            if let Some(src) = &init_from {
+                let state = ess_learner::experts::state_path(src);
+                for (what, p) in [("expert file", src), ("state file", &state)] {
+                    if !p.exists() {
+                        return Err(input_err(format!(
+                            "--init-from: no {what} at {}",
+                            p.display()
+                        )));
+                    }
+                }
+                let fits = || -> Result<()> {
+                    let e = ess_envs::ExpertPolicy::load(src)?;
+                    let env = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes)?;
+                    e.check_fits(env.spec(), e.meta.mode, src)?;
+                    Ok(())
+                };
+                fits().map_err(|e| input_err(format!("--init-from: {e:#}")))?;
+                if src == &out {
+                    return Err(input_err(format!(
+                        "--init-from {} is the --out file; use --resume to continue it",
+                        src.display()
+                    )));
+                }
+            }
             let tc = ExpertTrainConfig {
                 env: cfg.env.name.clone(),
                 n_modes: cfg.env.n_modes,
@@ -573,6 +603,7 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
                 ppo: cfg.ppo.clone(),
                 out: out.clone(),
                 resume,
+                init_from: init_from.clone(),
             };
             let shutdown = ctrl_c_flag()?;
             eprintln!(

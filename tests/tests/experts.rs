@@ -173,3 +173,123 @@ fn expert_training_with_actor_processes_matches_threads() {
     assert_eq!(tensor_bytes(&outs[0]), tensor_bytes(&outs[1]));
     assert_eq!(csv_without_seconds(&outs[0]), csv_without_seconds(&outs[1]));
 }
+
+/// `--init-from` is `--resume` from another mode's expert: the same weights, CSV rows
+/// and step count as copying that expert to `--out`, relabelling its mode and resuming.
+#[test]
+fn init_from_another_mode_equals_resuming_a_relabelled_copy() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = train(dir.path(), "reacher", "env.n_modes=2", 1);
+    let run = |out: &std::path::Path, start: &[&str]| {
+        let out_s = out.to_string_lossy().into_owned();
+        let mut args = vec![
+            "experts",
+            "train",
+            "--env",
+            "reacher",
+            "--set",
+            "env.n_modes=2",
+            "--mode",
+            "0",
+            "--out",
+            &out_s,
+        ];
+        args.extend_from_slice(start);
+        args.extend_from_slice(QUICK);
+        let steps_at = args.len() - QUICK.len() + 1;
+        args[steps_at] = "1600";
+        let o = ess(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let warm = dir.path().join("warm/mode0.safetensors");
+    let src_s = src.to_string_lossy().into_owned();
+    let stdout = run(&warm, &["--init-from", &src_s]);
+    assert!(stdout.contains("mode 0: 1600 steps"), "{stdout}");
+
+    // The same start by hand: relabel the mode in the header, copy the state file and
+    // start the CSV with its header only.
+    let copy = dir.path().join("copy/mode0.safetensors");
+    std::fs::create_dir_all(copy.parent().unwrap()).unwrap();
+    let bytes = std::fs::read(&src).unwrap();
+    let (from, to) = (br#"\"mode\":1,"#, br#"\"mode\":0,"#);
+    let at = bytes
+        .windows(from.len())
+        .position(|w| w == from)
+        .expect("mode in the header");
+    let mut relabelled = bytes.clone();
+    relabelled[at..at + to.len()].copy_from_slice(to);
+    std::fs::write(&copy, relabelled).unwrap();
+    std::fs::copy(
+        src.with_extension("safetensors.state.safetensors"),
+        copy.with_extension("safetensors.state.safetensors"),
+    )
+    .unwrap();
+    let csv = std::fs::read_to_string(src.with_extension("safetensors.csv")).unwrap();
+    let header = csv.lines().next().unwrap();
+    std::fs::write(
+        copy.with_extension("safetensors.csv"),
+        format!("{header}\n"),
+    )
+    .unwrap();
+    run(&copy, &["--resume"]);
+
+    assert_eq!(tensor_bytes(&warm), tensor_bytes(&copy));
+    let rows = csv_without_seconds(&warm);
+    assert_eq!(rows, csv_without_seconds(&copy));
+    // A fresh CSV whose first row continues the source's iterations (2 of 400 steps).
+    assert_eq!(rows.len(), 3, "{rows:?}");
+    assert!(rows[1].starts_with("3,1200,"), "{rows:?}");
+}
+
+#[test]
+fn init_from_a_missing_or_foreign_expert_is_an_input_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nope.safetensors");
+    let m = missing.to_string_lossy().into_owned();
+    let o = ess(&[
+        "experts",
+        "train",
+        "--env",
+        "walker2d",
+        "--mode",
+        "0",
+        "--init-from",
+        &m,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("nope.safetensors"), "{}", stderr(&o));
+
+    let reacher = train(dir.path(), "reacher", "env.n_modes=3", 0);
+    let r = reacher.to_string_lossy().into_owned();
+    let o = ess(&[
+        "experts",
+        "train",
+        "--env",
+        "walker2d",
+        "--mode",
+        "0",
+        "--init-from",
+        &r,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("env = reacher") && err.contains("walker2d"),
+        "{err}"
+    );
+
+    let o = ess(&[
+        "experts",
+        "train",
+        "--env",
+        "reacher",
+        "--mode",
+        "0",
+        "--resume",
+        "--init-from",
+        &r,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--init-from"), "{}", stderr(&o));
+}
