@@ -22,16 +22,33 @@ const QUICK: &[&str] = &[
     "run.torch_threads=1",
 ];
 
-fn train(dir: &std::path::Path, env: &str, n_modes: &str, mode: usize) -> std::path::PathBuf {
-    let out = dir.join(env).join(format!("mode{mode}.safetensors"));
+/// `ess experts train --env env --set n_modes --mode mode --out out [extra] QUICK`, with
+/// `--steps steps`; asserts success and returns stdout.
+fn train_to(
+    out: &std::path::Path,
+    env: &str,
+    n_modes: &str,
+    mode: usize,
+    extra: &[&str],
+    steps: &str,
+) -> String {
     let mode_s = mode.to_string();
     let out_s = out.to_string_lossy().into_owned();
     let mut args = vec![
         "experts", "train", "--env", env, "--set", n_modes, "--mode", &mode_s, "--out", &out_s,
     ];
+    args.extend_from_slice(extra);
     args.extend_from_slice(QUICK);
+    let at = args.len() - QUICK.len() + 1;
+    args[at] = steps;
     let o = ess(&args);
     assert!(o.status.success(), "experts train failed: {}", stderr(&o));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn train(dir: &std::path::Path, env: &str, n_modes: &str, mode: usize) -> std::path::PathBuf {
+    let out = dir.join(env).join(format!("mode{mode}.safetensors"));
+    train_to(&out, env, n_modes, mode, &[], QUICK[1]);
     out
 }
 
@@ -71,30 +88,8 @@ fn experts_train_then_eval_reports_every_mode_against_random() {
     }
     // Resuming continues the step count.
     let out = dir.path().join("reacher/mode0.safetensors");
-    let out_s = out.to_string_lossy().into_owned();
-    let mut args = vec![
-        "experts",
-        "train",
-        "--env",
-        "reacher",
-        "--set",
-        "env.n_modes=2",
-        "--mode",
-        "0",
-        "--out",
-        &out_s,
-        "--resume",
-    ];
-    args.extend_from_slice(QUICK);
-    let steps_at = args.len() - QUICK.len() + 1;
-    args[steps_at] = "1600";
-    let o = ess(&args);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(
-        String::from_utf8_lossy(&o.stdout).contains("1600 steps"),
-        "{}",
-        String::from_utf8_lossy(&o.stdout)
-    );
+    let stdout = train_to(&out, "reacher", "env.n_modes=2", 0, &["--resume"], "1600");
+    assert!(stdout.contains("1600 steps"), "{stdout}");
 }
 
 #[test]
@@ -181,26 +176,7 @@ fn init_from_another_mode_equals_resuming_a_relabelled_copy() {
     let dir = tempfile::tempdir().unwrap();
     let src = train(dir.path(), "reacher", "env.n_modes=2", 1);
     let run = |out: &std::path::Path, start: &[&str]| {
-        let out_s = out.to_string_lossy().into_owned();
-        let mut args = vec![
-            "experts",
-            "train",
-            "--env",
-            "reacher",
-            "--set",
-            "env.n_modes=2",
-            "--mode",
-            "0",
-            "--out",
-            &out_s,
-        ];
-        args.extend_from_slice(start);
-        args.extend_from_slice(QUICK);
-        let steps_at = args.len() - QUICK.len() + 1;
-        args[steps_at] = "1600";
-        let o = ess(&args);
-        assert!(o.status.success(), "{}", stderr(&o));
-        String::from_utf8_lossy(&o.stdout).into_owned()
+        train_to(out, "reacher", "env.n_modes=2", 0, start, "1600")
     };
     let warm = dir.path().join("warm/mode0.safetensors");
     let src_s = src.to_string_lossy().into_owned();
@@ -245,40 +221,32 @@ fn init_from_another_mode_equals_resuming_a_relabelled_copy() {
 #[test]
 fn init_from_a_missing_or_foreign_expert_is_an_input_error_naming_it() {
     let dir = tempfile::tempdir().unwrap();
-    let missing = dir.path().join("nope.safetensors");
-    let m = missing.to_string_lossy().into_owned();
-    let o = ess(&[
-        "experts",
-        "train",
-        "--env",
-        "walker2d",
-        "--mode",
-        "0",
-        "--init-from",
-        &m,
-    ]);
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(stderr(&o).contains("nope.safetensors"), "{}", stderr(&o));
+    let walker_from = |src: &std::path::Path| {
+        let s = src.to_string_lossy().into_owned();
+        let o = ess(&[
+            "experts",
+            "train",
+            "--env",
+            "walker2d",
+            "--mode",
+            "0",
+            "--init-from",
+            &s,
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        stderr(&o)
+    };
+    let err = walker_from(&dir.path().join("nope.safetensors"));
+    assert!(err.contains("nope.safetensors"), "{err}");
 
     let reacher = train(dir.path(), "reacher", "env.n_modes=3", 0);
-    let r = reacher.to_string_lossy().into_owned();
-    let o = ess(&[
-        "experts",
-        "train",
-        "--env",
-        "walker2d",
-        "--mode",
-        "0",
-        "--init-from",
-        &r,
-    ]);
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    let err = stderr(&o);
+    let err = walker_from(&reacher);
     assert!(
         err.contains("env = reacher") && err.contains("walker2d"),
         "{err}"
     );
 
+    let r = reacher.to_string_lossy().into_owned();
     let o = ess(&[
         "experts",
         "train",
