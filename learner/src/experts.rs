@@ -88,14 +88,14 @@ pub struct ExpertIteration {
 
 /// Running per-dimension mean and variance (Welford, merged per batch).
 #[derive(Debug, Clone)]
-struct RunningStats {
-    count: f64,
-    mean: Vec<f64>,
-    m2: Vec<f64>,
+pub(crate) struct RunningStats {
+    pub(crate) count: f64,
+    pub(crate) mean: Vec<f64>,
+    pub(crate) m2: Vec<f64>,
 }
 
 impl RunningStats {
-    fn new(d: usize) -> Self {
+    pub(crate) fn new(d: usize) -> Self {
         Self {
             count: 0.0,
             mean: vec![0.0; d],
@@ -103,7 +103,7 @@ impl RunningStats {
         }
     }
 
-    fn update(&mut self, rows: &[f32]) {
+    pub(crate) fn update(&mut self, rows: &[f32]) {
         let d = self.mean.len();
         for row in rows.chunks_exact(d) {
             self.count += 1.0;
@@ -115,7 +115,7 @@ impl RunningStats {
         }
     }
 
-    fn mean_std(&self) -> (Vec<f32>, Vec<f32>) {
+    pub(crate) fn mean_std(&self) -> (Vec<f32>, Vec<f32>) {
         let std = self
             .m2
             .iter()

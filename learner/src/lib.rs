@@ -35,6 +35,7 @@ pub mod progress;
 pub mod replay;
 pub mod report;
 pub mod runlog;
+pub mod sac;
 pub mod serve;
 pub mod table;
 pub mod train;

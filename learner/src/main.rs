@@ -106,6 +106,10 @@ enum ExpertsCmd {
         /// its steps too. E.g. a running Humanoid from the balancing one.
         #[arg(long, value_name = "EXPERT")]
         init_from: Option<PathBuf>,
+        /// Learner: PPO (the `ppo` and `run` sections) or SAC (the `sac` section and
+        /// run.seed / run.torch_threads; one env in this process).
+        #[arg(long, value_enum, default_value_t = ExpertAlgo::Ppo)]
+        algo: ExpertAlgo,
     },
     /// Each mode's expert against uniformly random actions on its task reward.
     Eval {
@@ -122,6 +126,15 @@ enum ExpertsCmd {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// Expert learners of `ess experts train`.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ExpertAlgo {
+    /// PPO with GAE, the imitation learner's ([`ess_learner::ppo`]).
+    Ppo,
+    /// Soft actor-critic ([`ess_learner::sac`]).
+    Sac,
 }
 
 #[derive(Args)]
@@ -543,9 +556,29 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
             out,
             resume,
             init_from,
+            algo,
         } => {
             let cfg = resolve(&config)?;
-            if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
+            if algo == ExpertAlgo::Sac && init_from.is_some() {
+                return Err(input_err(
+                    "--init-from warm-starts PPO experts only; with --algo sac use --resume",
+                ));
+            }
+            if algo == ExpertAlgo::Sac && cfg.sac.obs_prefix > 0 {
+                let env =
+                    ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
+                let od = env.spec().obs_dim;
+                if cfg.sac.obs_prefix > od {
+                    return Err(input_err(format!(
+                        "sac.obs_prefix = {} exceeds env {}'s observation length {od}",
+                        cfg.sac.obs_prefix, cfg.env.name
+                    )));
+                }
+            }
+            // SAC steps its one env in this process; PPO's actors may be processes.
+            if algo == ExpertAlgo::Ppo
+                && cfg.run.transport == ess_proto::config::ActorTransport::Processes
+            {
                 ess_learner::actors::actor_binary().map_err(input_err)?;
             }
             if mode >= cfg.env.n_modes {
@@ -613,29 +646,31 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
             );
             let t0 = std::time::Instant::now();
             let mut last = 0.0;
-            let e = train_expert(
-                &tc,
-                &mut |it| {
-                    let now = t0.elapsed().as_secs_f64();
-                    if now - last >= 5.0 || it.env_steps >= steps {
-                        last = now;
-                        eprintln!(
-                            "iter {:5} {:9} steps {:7.1}s  return {:>10}  length {:>6}  entropy {:.3}",
-                            it.iteration,
-                            it.env_steps,
-                            now,
-                            it.mean_return
-                                .map(|v| format!("{v:.2}"))
-                                .unwrap_or_default(),
-                            it.mean_length
-                                .map(|v| format!("{v:.0}"))
-                                .unwrap_or_default(),
-                            it.entropy
-                        );
-                    }
-                },
-                &shutdown,
-            )?;
+            let mut report = |it: &ess_learner::experts::ExpertIteration| {
+                let now = t0.elapsed().as_secs_f64();
+                if now - last >= 5.0 || it.env_steps >= steps {
+                    last = now;
+                    eprintln!(
+                        "iter {:5} {:9} steps {:7.1}s  return {:>10}  length {:>6}  entropy {:.3}",
+                        it.iteration,
+                        it.env_steps,
+                        now,
+                        it.mean_return
+                            .map(|v| format!("{v:.2}"))
+                            .unwrap_or_default(),
+                        it.mean_length
+                            .map(|v| format!("{v:.0}"))
+                            .unwrap_or_default(),
+                        it.entropy
+                    );
+                }
+            };
+            let e = match algo {
+                ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)?,
+                ExpertAlgo::Sac => {
+                    ess_learner::sac::train_expert_sac(&tc, &cfg.sac, &mut report, &shutdown)?
+                }
+            };
             println!(
                 "expert {} mode {}: {} steps, mean return of the last episodes {:.3} -> {}",
                 e.meta.env,

@@ -326,6 +326,61 @@ impl Default for PpoConfig {
     }
 }
 
+/// Soft actor-critic for expert training (`ess experts train --algo sac`): Haarnoja
+/// et al. 2018 ("Soft Actor-Critic Algorithms and Applications"), clipped double Q,
+/// Polyak-averaged target critics and an automatically tuned temperature.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SacConfig {
+    /// Hidden widths of the actor (tanh, exported as the expert's mean MLP) and of each
+    /// critic (ReLU).
+    pub hidden: Vec<usize>,
+    /// Adam learning rate of actor, critics and temperature.
+    pub lr: f64,
+    /// Minibatch size of every gradient step.
+    pub batch: usize,
+    /// Replay buffer capacity in transitions.
+    pub buffer: usize,
+    /// Discount gamma.
+    pub gamma: f64,
+    /// Polyak rate of the target critics.
+    pub tau: f64,
+    /// Uniformly random env steps before the first update (a fresh run only).
+    pub learning_starts: usize,
+    /// Gradient steps per env step.
+    pub updates_per_step: usize,
+    /// Initial temperature alpha.
+    pub init_alpha: f64,
+    /// Target policy entropy per action dimension (the total target is this times
+    /// `act_dim`; SAC's default is -1).
+    pub target_entropy_per_dim: f64,
+    /// Observe only the first this many observation entries (0: all). E.g. 45 on
+    /// Humanoid keeps `qpos[2..]` and `qvel` and drops the com-based blocks; the exported
+    /// expert still reads the whole observation, with zero weights on the rest.
+    pub obs_prefix: usize,
+    /// Env steps per CSV row and progress report.
+    pub log_every: usize,
+}
+
+impl Default for SacConfig {
+    fn default() -> Self {
+        Self {
+            hidden: vec![256, 256],
+            lr: 3e-4,
+            batch: 256,
+            buffer: 1_000_000,
+            gamma: 0.99,
+            tau: 0.005,
+            learning_starts: 5000,
+            updates_per_step: 1,
+            init_alpha: 1.0,
+            target_entropy_per_dim: -1.0,
+            obs_prefix: 0,
+            log_every: 5000,
+        }
+    }
+}
+
 /// Discriminator body with heads D, Q_c and Q_eps.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -441,6 +496,8 @@ pub struct TrainConfig {
     pub method: MethodConfig,
     /// PPO.
     pub ppo: PpoConfig,
+    /// SAC (expert training only).
+    pub sac: SacConfig,
     /// Discriminator and encoders.
     pub disc: DiscConfig,
     /// Run budget and evaluation.
@@ -819,6 +876,52 @@ impl TrainConfig {
             p.log_std_init,
             "must be in [-10, 2]",
         )?;
+        let c = &self.sac;
+        range(
+            !c.hidden.is_empty() && !c.hidden.contains(&0),
+            "sac.hidden",
+            format!("{:?}", c.hidden),
+            "must list >= 1 width, all > 0",
+        )?;
+        finite_pos("sac.lr", c.lr)?;
+        range(c.batch >= 1, "sac.batch", c.batch, "must be >= 1")?;
+        range(
+            c.buffer >= c.batch,
+            "sac.buffer",
+            c.buffer,
+            "must be >= sac.batch",
+        )?;
+        range(
+            c.gamma.is_finite() && c.gamma > 0.0 && c.gamma < 1.0,
+            "sac.gamma",
+            c.gamma,
+            "must be in (0, 1)",
+        )?;
+        range(
+            c.tau.is_finite() && c.tau > 0.0 && c.tau <= 1.0,
+            "sac.tau",
+            c.tau,
+            "must be in (0, 1]",
+        )?;
+        range(
+            c.updates_per_step >= 1,
+            "sac.updates_per_step",
+            c.updates_per_step,
+            "must be >= 1",
+        )?;
+        finite_pos("sac.init_alpha", c.init_alpha)?;
+        range(
+            c.target_entropy_per_dim.is_finite(),
+            "sac.target_entropy_per_dim",
+            c.target_entropy_per_dim,
+            "must be finite",
+        )?;
+        range(
+            c.log_every >= 1,
+            "sac.log_every",
+            c.log_every,
+            "must be >= 1",
+        )?;
         let q = &self.disc;
         range(
             !q.hidden.is_empty() && !q.hidden.contains(&0),
@@ -949,6 +1052,10 @@ mod tests {
             ("demos.imbalance_ratio=0.5", "demos.imbalance_ratio"),
             ("env.n_modes=1", "env.n_modes"),
             ("ppo.clip=0", "ppo.clip"),
+            ("sac.gamma=1", "sac.gamma"),
+            ("sac.buffer=10", "sac.buffer"),
+            ("sac.hidden=[256, 0]", "sac.hidden"),
+            ("sac.init_alpha=0", "sac.init_alpha"),
             ("run.log_chunk_steps=0", "run.log_chunk_steps"),
         ] {
             let e = ConfigBuilder::new()

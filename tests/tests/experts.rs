@@ -261,3 +261,107 @@ fn init_from_a_missing_or_foreign_expert_is_an_input_error_naming_it() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("--init-from"), "{}", stderr(&o));
 }
+
+/// SAC settings that make a run take a second (on top of QUICK's run settings).
+const SAC_QUICK: &[&str] = &[
+    "--algo",
+    "sac",
+    "--set",
+    "sac.hidden=[32, 32]",
+    "--set",
+    "sac.batch=32",
+    "--set",
+    "sac.buffer=5000",
+    "--set",
+    "sac.learning_starts=100",
+    "--set",
+    "sac.log_every=100",
+    "--set",
+    "sac.obs_prefix=6",
+];
+
+/// `--algo sac`: the same seed gives the same expert bit for bit, `eval` reads it,
+/// and `--resume` continues its step count and CSV.
+#[test]
+fn sac_experts_are_deterministic_evaluate_and_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a/reacher/mode1.safetensors");
+    let b = dir.path().join("b/reacher/mode1.safetensors");
+    for out in [&a, &b] {
+        let said = train_to(out, "reacher", "env.n_modes=2", 1, SAC_QUICK, "300");
+        assert!(said.contains("300 steps"), "{said}");
+    }
+    assert_eq!(tensor_bytes(&a), tensor_bytes(&b));
+    assert_eq!(csv_without_seconds(&a), csv_without_seconds(&b));
+    let rows = csv_without_seconds(&a);
+    assert_eq!(rows.len(), 4, "{rows:?}");
+    assert!(rows[3].starts_with("3,300,"), "{rows:?}");
+
+    let mut resume = SAC_QUICK.to_vec();
+    resume.push("--resume");
+    let said = train_to(&a, "reacher", "env.n_modes=2", 1, &resume, "500");
+    assert!(said.contains("500 steps"), "{said}");
+    let rows = csv_without_seconds(&a);
+    assert_eq!(rows.len(), 6, "{rows:?}");
+    assert!(rows[5].starts_with("5,500,"), "{rows:?}");
+    assert_ne!(
+        tensor_bytes(&a),
+        tensor_bytes(&b),
+        "resuming changed nothing"
+    );
+
+    // Mode 0 by PPO beside mode 1 by SAC: eval scores both from the same directory.
+    train(&dir.path().join("a"), "reacher", "env.n_modes=2", 0);
+    let d = dir.path().join("a").to_string_lossy().into_owned();
+    let o = ess(&[
+        "experts",
+        "eval",
+        "--env",
+        "reacher",
+        "--set",
+        "env.n_modes=2",
+        "--dir",
+        &d,
+        "--episodes",
+        "2",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(rows.as_array().map(|r| r.len()), Some(2), "{rows}");
+}
+
+#[test]
+fn sac_refuses_init_from_a_too_long_obs_prefix_and_a_ppo_state() {
+    let dir = tempfile::tempdir().unwrap();
+    let sac = |extra: &[&str]| {
+        let mut args = vec![
+            "experts", "train", "--env", "reacher", "--mode", "0", "--algo", "sac",
+        ];
+        args.extend_from_slice(extra);
+        ess(&args)
+    };
+    let o = sac(&["--init-from", "x.safetensors"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--init-from"), "{}", stderr(&o));
+
+    let o = sac(&["--set", "sac.obs_prefix=1000"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("sac.obs_prefix = 1000") && stderr(&o).contains("reacher"),
+        "{}",
+        stderr(&o)
+    );
+
+    // A PPO run cannot be resumed by SAC: the error names the state file.
+    let ppo = train(dir.path(), "reacher", "env.n_modes=6", 0);
+    let p = ppo.to_string_lossy().into_owned();
+    let o = sac(&["--out", &p, "--resume", "--steps", "900"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("mode0.safetensors.state.safetensors")
+            && stderr(&o).contains("no tensor"),
+        "{}",
+        stderr(&o)
+    );
+}
