@@ -86,6 +86,26 @@ pub struct ExpertIteration {
     pub entropy: f64,
 }
 
+impl ExpertIteration {
+    /// This report as a row of the expert's CSV (the columns `open_csv` writes).
+    pub(crate) fn write_csv_row(&self, w: &mut impl Write) -> std::io::Result<()> {
+        writeln!(
+            w,
+            "{},{},{},{},{:.4},{:.4}",
+            self.iteration,
+            self.env_steps,
+            self.mean_return
+                .map(|v| format!("{v:.4}"))
+                .unwrap_or_default(),
+            self.mean_length
+                .map(|v| format!("{v:.1}"))
+                .unwrap_or_default(),
+            self.seconds,
+            self.entropy
+        )
+    }
+}
+
 /// Running per-dimension mean and variance (Welford, merged per batch).
 #[derive(Debug, Clone)]
 pub(crate) struct RunningStats {
@@ -270,25 +290,7 @@ pub fn train_expert(
             },
         )?),
     };
-    if let Some(dir) = cfg.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    let csv_file = csv_path(&cfg.out);
-    let mut csv = std::io::BufWriter::new(
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(cfg.resume)
-            .write(true)
-            .truncate(!cfg.resume)
-            .open(&csv_file)
-            .with_context(|| format!("opening {}", csv_file.display()))?,
-    );
-    if !cfg.resume {
-        writeln!(
-            csv,
-            "iteration,env_steps,mean_return,mean_length,seconds,entropy"
-        )?;
-    }
+    let mut csv = open_csv(cfg)?;
     let mut scaler = RewardScaler::default();
     let mut open = Vec::new();
     let mut recent: Vec<f64> = Vec::new();
@@ -368,16 +370,7 @@ pub fn train_expert(
             seconds: t0.elapsed().as_secs_f64(),
             entropy: st.entropy,
         };
-        writeln!(
-            csv,
-            "{},{},{},{},{:.4},{:.4}",
-            it,
-            env_steps,
-            mean_return.map(|v| format!("{v:.4}")).unwrap_or_default(),
-            mean_length.map(|v| format!("{v:.1}")).unwrap_or_default(),
-            report.seconds,
-            st.entropy
-        )?;
+        report.write_csv_row(&mut csv)?;
         progress(&report);
         it += 1;
         // Save every 10 iterations and at the end (the state file is what resumes).
@@ -399,6 +392,60 @@ pub fn train_expert(
     }
 }
 
+/// Creates `cfg.out`'s directory and opens its CSV: appending when resuming, else
+/// fresh with the header.
+pub(crate) fn open_csv(cfg: &ExpertTrainConfig) -> Result<std::io::BufWriter<std::fs::File>> {
+    if let Some(dir) = cfg.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let csv_file = csv_path(&cfg.out);
+    let mut csv = std::io::BufWriter::new(
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(cfg.resume)
+            .write(true)
+            .truncate(!cfg.resume)
+            .open(&csv_file)
+            .with_context(|| format!("opening {}", csv_file.display()))?,
+    );
+    if !cfg.resume {
+        writeln!(
+            csv,
+            "iteration,env_steps,mean_return,mean_length,seconds,entropy"
+        )?;
+    }
+    Ok(csv)
+}
+
+/// The meta of an expert trained by `cfg`: mean return over `recent` episodes,
+/// `learner` appended to the generator (e.g. " (sac)").
+pub(crate) fn expert_meta(
+    cfg: &ExpertTrainConfig,
+    spec: &ess_envs::EnvSpec,
+    sizes: Vec<usize>,
+    extra_inputs: usize,
+    env_steps: u64,
+    recent: &[f64],
+    learner: &str,
+) -> ExpertMeta {
+    ExpertMeta {
+        env: spec.name.clone(),
+        mode: cfg.mode,
+        n_modes: spec.n_modes,
+        obs_dim: spec.obs_dim,
+        act_dim: spec.act_dim,
+        sizes,
+        extra_inputs,
+        trained_steps: env_steps,
+        mean_return: if recent.is_empty() {
+            0.0
+        } else {
+            recent.iter().sum::<f64>() / recent.len() as f64
+        },
+        generator: format!("ess {}{learner}", env!("CARGO_PKG_VERSION")),
+    }
+}
+
 fn save(
     cfg: &ExpertTrainConfig,
     spec: &ess_envs::EnvSpec,
@@ -409,22 +456,15 @@ fn save(
 ) -> Result<ExpertPolicy> {
     let (obs_mean, obs_std) = stats.mean_std();
     let w = export_policy(&ppo.policy, &ppo.prior_logits, &obs_mean, &obs_std, 0)?;
-    let meta = ExpertMeta {
-        env: spec.name.clone(),
-        mode: cfg.mode,
-        n_modes: spec.n_modes,
-        obs_dim: spec.obs_dim,
-        act_dim: spec.act_dim,
-        sizes: w.mean.layout().sizes.clone(),
-        extra_inputs: 2,
-        trained_steps: env_steps,
-        mean_return: if recent.is_empty() {
-            0.0
-        } else {
-            recent.iter().sum::<f64>() / recent.len() as f64
-        },
-        generator: format!("ess {}", env!("CARGO_PKG_VERSION")),
-    };
+    let meta = expert_meta(
+        cfg,
+        spec,
+        w.mean.layout().sizes.clone(),
+        2,
+        env_steps,
+        recent,
+        "",
+    );
     let e = ExpertPolicy::new(meta, w.mean.params().to_vec(), w.log_std, obs_mean, obs_std)
         .map_err(|r| anyhow::anyhow!("exported expert is inconsistent: {r}"))?;
     e.save(&cfg.out)?;

@@ -40,14 +40,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use ess_envs::{ExpertMeta, ExpertPolicy, make_plain_env};
+use ess_envs::{ExpertPolicy, make_plain_env};
 use ess_proto::config::SacConfig;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tch::nn::{Module, OptimizerConfig};
 use tch::{Kind, Tensor, nn};
 
-use crate::experts::{ExpertIteration, ExpertTrainConfig, RunningStats, csv_path, state_path};
+use crate::experts::{
+    ExpertIteration, ExpertTrainConfig, RunningStats, expert_meta, open_csv, state_path,
+};
 use crate::nets::{Mlp, tensor_2d, tensor_to_vec};
 
 /// Replay states whose mean actor log std becomes the exported `log_std`.
@@ -503,25 +505,7 @@ pub fn train_expert_sac(
     };
     let update_from = env_steps + sc.learning_starts.max(sc.batch) as u64;
     let mut replay = Replay::new(sc.buffer, od, ad);
-    if let Some(dir) = cfg.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    let csv_file = csv_path(&cfg.out);
-    let mut csv = std::io::BufWriter::new(
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(cfg.resume)
-            .write(true)
-            .truncate(!cfg.resume)
-            .open(&csv_file)
-            .with_context(|| format!("opening {}", csv_file.display()))?,
-    );
-    if !cfg.resume {
-        writeln!(
-            csv,
-            "iteration,env_steps,mean_return,mean_length,seconds,entropy"
-        )?;
-    }
+    let mut csv = open_csv(cfg)?;
     let log_every = sc.log_every as u64;
     let mut it = (env_steps / log_every) as usize + 1;
     let mut obs = vec![0.0f32; od];
@@ -610,16 +594,7 @@ pub fn train_expert_sac(
                 entropy: last.entropy,
             };
             t0 = Instant::now();
-            writeln!(
-                csv,
-                "{},{},{},{},{:.4},{:.4}",
-                it,
-                env_steps,
-                mean_return.map(|v| format!("{v:.4}")).unwrap_or_default(),
-                mean_length.map(|v| format!("{v:.1}")).unwrap_or_default(),
-                report.seconds,
-                last.entropy
-            )?;
+            report.write_csv_row(&mut csv)?;
             progress(&report);
             tracing::debug!(
                 alpha = sac.alpha(),
@@ -655,22 +630,7 @@ fn save(
 ) -> Result<ExpertPolicy> {
     let (mean, std) = stats.mean_std();
     let (sizes, params, log_std) = export(sac, replay, p, spec.obs_dim, &mean, &std);
-    let meta = ExpertMeta {
-        env: spec.name.clone(),
-        mode: cfg.mode,
-        n_modes: spec.n_modes,
-        obs_dim: spec.obs_dim,
-        act_dim: spec.act_dim,
-        sizes,
-        extra_inputs: 0,
-        trained_steps: env_steps,
-        mean_return: if recent.is_empty() {
-            0.0
-        } else {
-            recent.iter().sum::<f64>() / recent.len() as f64
-        },
-        generator: format!("ess {} (sac)", env!("CARGO_PKG_VERSION")),
-    };
+    let meta = expert_meta(cfg, spec, sizes, 0, env_steps, recent, " (sac)");
     let e = ExpertPolicy::new(meta, params, log_std, mean, std)
         .map_err(|r| anyhow::anyhow!("exported SAC expert is inconsistent: {r}"))?;
     e.save(&cfg.out)?;
@@ -681,6 +641,7 @@ fn save(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ess_envs::ExpertMeta;
 
     fn small() -> SacConfig {
         SacConfig {

@@ -52,19 +52,9 @@ fn train(dir: &std::path::Path, env: &str, n_modes: &str, mode: usize) -> std::p
     out
 }
 
-#[test]
-fn experts_train_then_eval_reports_every_mode_against_random() {
-    let dir = tempfile::tempdir().unwrap();
-    for mode in 0..2 {
-        let out = train(dir.path(), "reacher", "env.n_modes=2", mode);
-        assert!(out.exists());
-        assert!(
-            dir.path()
-                .join(format!("reacher/mode{mode}.safetensors.csv"))
-                .exists()
-        );
-    }
-    let d = dir.path().to_string_lossy().into_owned();
+/// `ess experts eval --json` rows of 2-mode Reacher experts under `dir`.
+fn eval_two_reacher_modes(dir: &std::path::Path) -> Vec<serde_json::Value> {
+    let d = dir.to_string_lossy().into_owned();
     let o = ess(&[
         "experts",
         "eval",
@@ -80,9 +70,24 @@ fn experts_train_then_eval_reports_every_mode_against_random() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let rows: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json rows");
-    let rows = rows.as_array().expect("array");
+    rows.as_array().expect("array").clone()
+}
+
+#[test]
+fn experts_train_then_eval_reports_every_mode_against_random() {
+    let dir = tempfile::tempdir().unwrap();
+    for mode in 0..2 {
+        let out = train(dir.path(), "reacher", "env.n_modes=2", mode);
+        assert!(out.exists());
+        assert!(
+            dir.path()
+                .join(format!("reacher/mode{mode}.safetensors.csv"))
+                .exists()
+        );
+    }
+    let rows = eval_two_reacher_modes(dir.path());
     assert_eq!(rows.len(), 2);
-    for r in rows {
+    for r in &rows {
         assert!(r["expert_return"].as_f64().expect("number").is_finite());
         assert!(r["random_return"].as_f64().expect("number").is_finite());
     }
@@ -312,23 +317,8 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
 
     // Mode 0 by PPO beside mode 1 by SAC: eval scores both from the same directory.
     train(&dir.path().join("a"), "reacher", "env.n_modes=2", 0);
-    let d = dir.path().join("a").to_string_lossy().into_owned();
-    let o = ess(&[
-        "experts",
-        "eval",
-        "--env",
-        "reacher",
-        "--set",
-        "env.n_modes=2",
-        "--dir",
-        &d,
-        "--episodes",
-        "2",
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let rows: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(rows.as_array().map(|r| r.len()), Some(2), "{rows}");
+    let rows = eval_two_reacher_modes(&dir.path().join("a"));
+    assert_eq!(rows.len(), 2, "{rows:?}");
 }
 
 #[test]
