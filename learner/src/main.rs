@@ -560,20 +560,8 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
         } => {
             let cfg = resolve(&config)?;
             if algo == ExpertAlgo::Sac && init_from.is_some() {
-                return Err(input_err(
-                    "--init-from warm-starts PPO experts only; with --algo sac use --resume",
-                ));
-            }
-            if algo == ExpertAlgo::Sac && cfg.sac.obs_prefix > 0 {
-                let env =
-                    ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
-                let od = env.spec().obs_dim;
-                if cfg.sac.obs_prefix > od {
-                    return Err(input_err(format!(
-                        "sac.obs_prefix = {} exceeds env {}'s observation length {od}",
-                        cfg.sac.obs_prefix, cfg.env.name
-                    )));
-                }
+                // Before the --init-from file checks, which would miss the point.
+                return Err(input_err(ess_learner::sac::SacInputError::InitFrom));
             }
             // SAC steps its one env in this process; PPO's actors may be processes.
             if algo == ExpertAlgo::Ppo
@@ -668,7 +656,16 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
             let e = match algo {
                 ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)?,
                 ExpertAlgo::Sac => {
-                    ess_learner::sac::train_expert_sac(&tc, &cfg.sac, &mut report, &shutdown)?
+                    ess_learner::sac::train_expert_sac(&tc, &cfg.sac, &mut report, &shutdown)
+                        .map_err(|e| {
+                            if e.downcast_ref::<ess_learner::sac::SacInputError>()
+                                .is_some()
+                            {
+                                input_err(format!("{e:#}"))
+                            } else {
+                                e
+                            }
+                        })?
                 }
             };
             println!(

@@ -323,8 +323,8 @@ fn update(
         + (sac.q[1].forward(&s, &a) - &y).square().mean(Kind::Float);
     opts[1].backward_step(&critic_loss);
     // The actor loss needs Q's input gradient only: no weight gradients for the critics.
-    let critic_params = sac.critic_vs.trainable_variables();
-    for v in &critic_params {
+    // (The Polyak pairs' sources are exactly the critics' variables.)
+    for (_, v) in &sac.polyak {
         let _ = v.set_requires_grad(false);
     }
     let (api, logp) = sac.actor.sample(&s);
@@ -333,7 +333,7 @@ fn update(
         .minimum(&sac.q[1].forward(&s, &api));
     let actor_loss = (&alpha * &logp - qpi).mean(Kind::Float);
     opts[0].backward_step(&actor_loss);
-    for v in &critic_params {
+    for (_, v) in &sac.polyak {
         let _ = v.set_requires_grad(true);
     }
     let alpha_loss = -(sac.log_alpha.exp() * (logp.detach() + target_entropy)).mean(Kind::Float);
@@ -452,6 +452,19 @@ fn export(
     (sizes, params, log_std)
 }
 
+/// A [`train_expert_sac`] argument the user has to change (the CLI exits 2 on it).
+#[derive(Debug, thiserror::Error)]
+pub enum SacInputError {
+    #[error("--init-from warm-starts PPO experts only; with --algo sac use --resume")]
+    InitFrom,
+    #[error("sac.obs_prefix = {prefix} exceeds env {env}'s observation length {obs_dim}")]
+    ObsPrefix {
+        prefix: usize,
+        env: String,
+        obs_dim: usize,
+    },
+}
+
 /// Trains `cfg.mode`'s expert with SAC; `progress` sees one report per `log_every`
 /// env steps. Stops early (saving) when `shutdown` is set. Returns the saved expert.
 pub fn train_expert_sac(
@@ -461,7 +474,7 @@ pub fn train_expert_sac(
     shutdown: &AtomicBool,
 ) -> Result<ExpertPolicy> {
     if cfg.init_from.is_some() {
-        bail!("--init-from warm-starts PPO experts only; SAC supports --resume");
+        bail!(SacInputError::InitFrom);
     }
     let mut env = make_plain_env(&cfg.env, cfg.n_modes)?;
     let spec = env.spec().clone();
@@ -473,11 +486,11 @@ pub fn train_expert_sac(
     }
     let (od, ad) = (spec.obs_dim, spec.act_dim);
     if sc.obs_prefix > od {
-        bail!(
-            "sac.obs_prefix = {} exceeds env {}'s observation length {od}",
-            sc.obs_prefix,
-            spec.name
-        );
+        bail!(SacInputError::ObsPrefix {
+            prefix: sc.obs_prefix,
+            env: spec.name.clone(),
+            obs_dim: od,
+        });
     }
     let p = if sc.obs_prefix == 0 {
         od
@@ -535,14 +548,20 @@ pub fn train_expert_sac(
         if shutdown.load(Ordering::Relaxed) {
             break;
         }
-        let (mean, std) = stats.mean_std();
-        if env_steps < random_until {
-            act.iter_mut()
-                .for_each(|a| *a = rng.random_range(-1.0..1.0));
-        } else {
-            let x = gather_norm(&obs, od, p, &[0], &mean, &std);
-            let a = tch::no_grad(|| sac.actor.sample(&x).0);
-            act.copy_from_slice(&tensor_to_vec(&a));
+        // The normaliser as of this step, for acting and this step's update; the
+        // random-action steps before the first update need none.
+        let random = env_steps < random_until;
+        let updating = env_steps + 1 >= update_from;
+        let norm = (!random || updating).then(|| stats.mean_std());
+        match &norm {
+            Some((mean, std)) if !random => {
+                let x = gather_norm(&obs, od, p, &[0], mean, std);
+                let a = tch::no_grad(|| sac.actor.sample(&x).0);
+                act.copy_from_slice(&tensor_to_vec(&a));
+            }
+            _ => act
+                .iter_mut()
+                .for_each(|a| *a = rng.random_range(-1.0..1.0)),
         }
         let out = env.step(&act, &mut next)?;
         env.task_rewards(&mut rewards);
@@ -563,7 +582,8 @@ pub fn train_expert_sac(
         } else {
             std::mem::swap(&mut obs, &mut next);
         }
-        if env_steps >= update_from && replay.len >= sc.batch {
+        // (`update_from` is at least `batch` steps past the start: the replay holds a batch.)
+        if let (true, Some((mean, std))) = (env_steps >= update_from, &norm) {
             for u in 0..sc.updates_per_step {
                 let want = env_steps.is_multiple_of(log_every) && u == 0;
                 let st = update(
@@ -573,8 +593,8 @@ pub fn train_expert_sac(
                     sc,
                     p,
                     target_entropy,
-                    &mean,
-                    &std,
+                    mean,
+                    std,
                     &mut rng,
                     want,
                 );

@@ -333,15 +333,23 @@ fn sac_refuses_init_from_a_too_long_obs_prefix_and_a_ppo_state() {
     };
     let o = sac(&["--init-from", "x.safetensors"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(stderr(&o).contains("--init-from"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--init-from warm-starts PPO experts only"),
+        "{}",
+        stderr(&o)
+    );
 
-    let o = sac(&["--set", "sac.obs_prefix=1000"]);
+    // Refused before anything is written.
+    let out = dir.path().join("prefix.safetensors");
+    let out_s = out.to_string_lossy().into_owned();
+    let o = sac(&["--set", "sac.obs_prefix=1000", "--out", &out_s]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("sac.obs_prefix = 1000") && stderr(&o).contains("reacher"),
         "{}",
         stderr(&o)
     );
+    assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none());
 
     // A PPO run cannot be resumed by SAC: the error names the state file.
     let ppo = train(dir.path(), "reacher", "env.n_modes=6", 0);
