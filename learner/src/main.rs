@@ -304,6 +304,15 @@ fn input_err(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::Error::new(InputError(e.to_string()))
 }
 
+/// `e` as an input error (exit 2) when it is a `T`, the library's typed input errors.
+fn input_if<T: std::error::Error + Send + Sync + 'static>(e: anyhow::Error) -> anyhow::Error {
+    if e.downcast_ref::<T>().is_some() {
+        input_err(format!("{e:#}"))
+    } else {
+        e
+    }
+}
+
 impl ConfigArgs {
     /// The layers these flags name (reading the config file).
     fn layers(&self) -> Result<ConfigLayers> {
@@ -455,17 +464,19 @@ fn train(mut args: TrainArgs) -> Result<()> {
         let mut progress =
             JsonlProgress::new(std::io::stdout().lock()).stop_when_reader_gone(shutdown.clone());
         let result = match args.resume {
-            Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown)?,
-            None => run(&cfg, &out, &mut progress, &shutdown)?,
-        };
+            Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown),
+            None => run(&cfg, &out, &mut progress, &shutdown),
+        }
+        .map_err(input_if::<ess_learner::train::TrainInputError>)?;
         progress.emit(&ProgressEvent::Summary((&result.summary).into()));
         return Ok(());
     }
     let mut progress = CliProgress::new(cfg.run.iterations);
     let result = match args.resume {
-        Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown)?,
-        None => run(&cfg, &out, &mut progress, &shutdown)?,
-    };
+        Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown),
+        None => run(&cfg, &out, &mut progress, &shutdown),
+    }
+    .map_err(input_if::<ess_learner::train::TrainInputError>)?;
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }
@@ -657,15 +668,7 @@ fn experts(cmd: ExpertsCmd) -> Result<()> {
                 ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)?,
                 ExpertAlgo::Sac => {
                     ess_learner::sac::train_expert_sac(&tc, &cfg.sac, &mut report, &shutdown)
-                        .map_err(|e| {
-                            if e.downcast_ref::<ess_learner::sac::SacInputError>()
-                                .is_some()
-                            {
-                                input_err(format!("{e:#}"))
-                            } else {
-                                e
-                            }
-                        })?
+                        .map_err(input_if::<ess_learner::sac::SacInputError>)?
                 }
             };
             println!(

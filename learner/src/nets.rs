@@ -134,6 +134,17 @@ impl Policy {
     }
 }
 
+/// How many leading observation entries a net reads under an `obs_prefix` setting
+/// (`sac.obs_prefix`, `disc.obs_prefix`): 0 means all `obs_dim`; `None` when the
+/// prefix is longer than the observation.
+pub fn obs_columns(prefix: usize, obs_dim: usize) -> Option<usize> {
+    match prefix {
+        0 => Some(obs_dim),
+        p if p <= obs_dim => Some(p),
+        _ => None,
+    }
+}
+
 /// Discriminator body and its three heads.
 #[derive(Debug)]
 pub struct Discriminator {
@@ -218,6 +229,14 @@ pub fn export_policy(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn obs_columns_reads_0_as_all_and_refuses_a_prefix_past_the_end() {
+        assert_eq!(obs_columns(0, 45), Some(45));
+        assert_eq!(obs_columns(2, 45), Some(2));
+        assert_eq!(obs_columns(45, 45), Some(45));
+        assert_eq!(obs_columns(46, 45), None);
+    }
 
     #[test]
     fn rust_forward_equals_tch_forward_within_1e_5() {

@@ -485,18 +485,12 @@ pub fn train_expert_sac(
         });
     }
     let (od, ad) = (spec.obs_dim, spec.act_dim);
-    if sc.obs_prefix > od {
-        bail!(SacInputError::ObsPrefix {
+    let p =
+        crate::nets::obs_columns(sc.obs_prefix, od).ok_or_else(|| SacInputError::ObsPrefix {
             prefix: sc.obs_prefix,
             env: spec.name.clone(),
             obs_dim: od,
-        });
-    }
-    let p = if sc.obs_prefix == 0 {
-        od
-    } else {
-        sc.obs_prefix
-    };
+        })?;
     tch::set_num_threads(cfg.torch_threads.max(1) as i32);
     tch::manual_seed(cfg.seed as i64);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5AC);

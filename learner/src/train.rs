@@ -203,11 +203,11 @@ pub struct PhaseSeconds {
 
 /// Expert data as tensors.
 struct ExpertData {
-    /// `[n, obs+act]` normalised unlabeled inputs.
+    /// `[n, cols+act]` normalised unlabeled inputs (`cols`: `disc.obs_prefix`).
     unlabeled: Tensor,
     /// `[n]` true modes (only for the full-label baseline).
     unlabeled_mode: Tensor,
-    /// `[m, obs+act]` labeled inputs.
+    /// `[m, cols+act]` labeled inputs.
     labeled: Tensor,
     /// `[m]` labels.
     labels: Tensor,
@@ -220,9 +220,10 @@ fn norm_obs(obs: &[f32], mean: &[f32], std: &[f32]) -> Tensor {
     tensor_2d(&v, mean.len())
 }
 
-/// Discriminator inputs `[norm(s), a]` from normalised observations and actions.
-fn disc_inputs(obs_n: &Tensor, act: &[f32], ad: usize) -> Tensor {
-    Tensor::cat(&[obs_n, &tensor_2d(act, ad)], 1)
+/// Discriminator inputs `[norm(s)[..cols], a]` from normalised observations and
+/// actions (`cols`: the observation entries D reads, `disc.obs_prefix`).
+fn disc_inputs(obs_n: &Tensor, cols: usize, act: &[f32], ad: usize) -> Tensor {
+    Tensor::cat(&[&obs_n.narrow(1, 0, cols as i64), &tensor_2d(act, ad)], 1)
 }
 
 fn scalar(t: &Tensor) -> f64 {
@@ -397,6 +398,21 @@ fn truncate_metrics(path: &Path, next: usize) -> Result<()> {
     write_atomic(path, kept.as_bytes())
 }
 
+/// A configuration that the env it names cannot take; the CLI exits 2 on it.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainInputError {
+    /// `disc.obs_prefix` longer than the observation.
+    #[error("disc.obs_prefix = {prefix} exceeds env `{env}`'s observation length {obs_dim}")]
+    DiscObsPrefix {
+        /// The configured prefix.
+        prefix: usize,
+        /// The env's name.
+        env: String,
+        /// Its observation length.
+        obs_dim: usize,
+    },
+}
+
 fn run_from(
     cfg: &CheckedConfig,
     out: &Path,
@@ -405,6 +421,16 @@ fn run_from(
     resuming: bool,
 ) -> Result<RunOutput> {
     let t_total = Instant::now();
+    // Checked before anything is written or the demonstrations (minutes) generated.
+    let mut eval_env = make_env(&cfg.env.name, cfg.env.n_modes)?;
+    let spec = eval_env.spec().clone();
+    let dcols = crate::nets::obs_columns(cfg.disc.obs_prefix, spec.obs_dim).ok_or_else(|| {
+        TrainInputError::DiscObsPrefix {
+            prefix: cfg.disc.obs_prefix,
+            env: spec.name.clone(),
+            obs_dim: spec.obs_dim,
+        }
+    })?;
     std::fs::create_dir_all(out)
         .with_context(|| format!("creating output dir {}", out.display()))?;
     if !resuming {
@@ -425,8 +451,6 @@ fn run_from(
 
     progress.message("demonstrations");
     let demos = load_or_generate_demos(cfg)?;
-    let mut eval_env = make_env(&cfg.env.name, cfg.env.n_modes)?;
-    let spec = eval_env.spec().clone();
     if demos.meta.obs_dim != spec.obs_dim || demos.meta.act_dim != spec.act_dim {
         bail!(
             "dataset dims obs {} / act {} do not match env `{}` (obs {} / act {})",
@@ -442,6 +466,7 @@ fn run_from(
     let expert = ExpertData {
         unlabeled: disc_inputs(
             &norm_obs(&demos.unlabeled.obs, &obs_mean, &obs_std),
+            dcols,
             &demos.unlabeled.act,
             ad,
         ),
@@ -455,6 +480,7 @@ fn run_from(
         ),
         labeled: disc_inputs(
             &norm_obs(&demos.labeled.obs, &obs_mean, &obs_std),
+            dcols,
             &demos.labeled.act,
             ad,
         ),
@@ -498,7 +524,7 @@ fn run_from(
         m.prior,
         m.gumbel_tau,
     )?;
-    let disc = Discriminator::new(dvs.root() / "disc", od + ad, &cfg.disc.hidden, k);
+    let disc = Discriminator::new(dvs.root() / "disc", dcols + ad, &cfg.disc.hidden, k);
     let mut dopt = crate::optim::Adam::new(&dvs, cfg.disc.lr)?;
 
     let mut actors = rollout_source(cfg, latent, k)?;
@@ -646,7 +672,7 @@ fn run_from(
         // --- discriminator and encoders ----------------------------------------------
         let t1 = Instant::now();
         let obs_n = norm_obs(&all.obs, &obs_mean, &obs_std);
-        let gen_x = disc_inputs(&obs_n, &all.act, ad);
+        let gen_x = disc_inputs(&obs_n, dcols, &all.act, ad);
         let gen_code = tensor_2d(&all.code, k);
         let gen_eps = Tensor::from_slice(&all.eps);
         let n_gen = all.len() as i64;

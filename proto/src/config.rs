@@ -393,6 +393,11 @@ pub struct DiscConfig {
     pub steps: usize,
     /// Batch size of each update, per data source (paper code: 1000).
     pub batch: usize,
+    /// D, Q_c and Q_eps read only the first this many observation entries, plus the
+    /// action (0: the whole observation, as in the paper). E.g. 45 on Humanoid keeps
+    /// `qpos[2..]` and `qvel` and drops the com-inertia, com-velocity, actuator-force and
+    /// contact-force blocks, by which D can tell policy from expert without the pose.
+    pub obs_prefix: usize,
 }
 
 impl Default for DiscConfig {
@@ -402,6 +407,7 @@ impl Default for DiscConfig {
             lr: 3e-4,
             steps: 50,
             batch: 1000,
+            obs_prefix: 0,
         }
     }
 }

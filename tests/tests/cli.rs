@@ -376,3 +376,44 @@ fn resume_refuses_a_new_configuration() {
         "--set",
     );
 }
+
+#[test]
+fn disc_obs_prefix_trains_on_a_prefix_and_a_too_long_one_is_rejected_before_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad");
+    let o = ess(&[
+        "train",
+        "--actors",
+        "0",
+        "--set",
+        "disc.obs_prefix=1000",
+        "--out",
+        bad.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("disc.obs_prefix = 1000") && err.contains("traj2d"),
+        "{err}"
+    );
+    assert!(!bad.exists(), "nothing is written for a rejected config");
+
+    let out = dir.path().join("run");
+    let mut args = vec![
+        "train",
+        "--actors",
+        "0",
+        "--set",
+        "disc.obs_prefix=2",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(SMOKE);
+    let o = ess(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cfg = std::fs::read_to_string(out.join("config.toml")).unwrap();
+    assert!(cfg.contains("obs_prefix = 2"), "{cfg}");
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert!(s["nmi"].as_f64().unwrap().is_finite(), "{s}");
+}
