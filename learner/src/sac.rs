@@ -31,11 +31,19 @@
 //!
 //! **Files**: as PPO's expert training: the expert, `<file>.state.safetensors` (all
 //! networks, the temperature and the normaliser) and `<file>.csv` (one row per
-//! `log_every` env steps, same columns). `--resume` continues from the state file; the
-//! replay buffer and Adam moments are not saved, so a resumed run refills its buffer
-//! (with the policy, not random actions) for `learning_starts` steps before updating.
+//! `log_every` env steps, same columns), plus, when the run stops (finished or Ctrl-C)
+//! and `save_replay` is on, `<file>.replay.safetensors`: the replay buffer. `--resume`
+//! continues from the state file and, if there is one, the replay file, updating from
+//! its first step on. Without a replay file (a crash, `save_replay = false`) it refills
+//! its buffer with the policy (not random actions) for `learning_starts` steps before
+//! updating; that costs a Humanoid run ~100K steps of progress (bench/mujoco.md), as the
+//! refilled buffer holds only the current policy's data. Adam moments are not saved.
+//!
+//! The replay keeps only the observation entries the networks read (`obs_prefix`), raw
+//! (normalised when a batch is drawn).
 
 use std::io::Write;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -142,7 +150,8 @@ impl QNet {
     }
 }
 
-/// Transitions, raw observations, in a ring.
+/// Transitions, raw observations (the first `od` entries: the prefix the networks
+/// read), in a ring.
 struct Replay {
     od: usize,
     ad: usize,
@@ -188,6 +197,106 @@ impl Replay {
     fn newest(&self, back: usize) -> usize {
         (self.next + self.cap - 1 - back) % self.cap
     }
+
+    /// Writes the filled rows and the ring position to `path` (via a temporary file, so
+    /// a stop mid-write leaves the old file), tagged with the run's `env_steps`.
+    fn save(&self, path: &Path, env_steps: u64) -> Result<()> {
+        let n = self.len;
+        let rows = |v: &[f32], w: usize| Tensor::from_slice(&v[..n * w]).view([n as i64, w as i64]);
+        let meta = [self.cap, self.next, self.od, self.ad, env_steps as usize].map(|v| v as i64);
+        let named = [
+            ("meta", Tensor::from_slice(&meta)),
+            ("obs", rows(&self.obs, self.od)),
+            ("next_obs", rows(&self.next_obs, self.od)),
+            ("act", rows(&self.act, self.ad)),
+            ("rew", rows(&self.rew, 1)),
+            ("live", rows(&self.live, 1)),
+        ];
+        let tmp = path.with_extension("tmp");
+        Tensor::write_safetensors(&named, &tmp)
+            .with_context(|| format!("writing SAC replay {}", tmp.display()))?;
+        std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+    }
+
+    /// Reads what [`Replay::save`] wrote, for a run with capacity `cap`, `od` observed
+    /// entries and `ad` action entries; returns it and the `env_steps` it was saved at.
+    /// A file of another shape is refused naming the file, the field and both values.
+    fn load(path: &Path, cap: usize, od: usize, ad: usize) -> Result<(Self, u64)> {
+        let what = || format!("SAC replay {}", path.display());
+        let tensors: std::collections::HashMap<String, Tensor> = Tensor::read_safetensors(path)
+            .with_context(|| format!("reading {}", what()))?
+            .into_iter()
+            .collect();
+        let get = |name: &str| {
+            tensors
+                .get(name)
+                .with_context(|| format!("{}: no tensor {name}", what()))
+        };
+        let meta = Vec::<i64>::try_from(get("meta")?)
+            .ok()
+            .filter(|m| m.len() == 5 && m.iter().all(|&v| v >= 0))
+            .with_context(|| format!("{}: meta is not 5 non-negative integers", what()))?;
+        let [fcap, next, fod, fad, steps] = [meta[0], meta[1], meta[2], meta[3], meta[4]];
+        let hint =
+            "(resume with the settings it was saved with, or delete the file to refill the buffer)";
+        for (field, file, run) in [
+            ("sac.buffer", fcap, cap),
+            ("observed entries (sac.obs_prefix)", fod, od),
+            ("action entries", fad, ad),
+        ] {
+            if file as usize != run {
+                bail!(
+                    "{}: {field} is {file} there, {run} in this run {hint}",
+                    what()
+                );
+            }
+        }
+        let mut r = Self::new(cap, od, ad);
+        let rows = get("rew")?.size().first().copied().unwrap_or(-1);
+        if rows < 0 || rows as usize > cap || next as usize >= cap.max(1) {
+            bail!(
+                "{}: {rows} rows, ring position {next}, capacity {cap}",
+                what()
+            );
+        }
+        let n = rows as usize;
+        if n < cap && next as usize != n {
+            bail!(
+                "{}: a ring of {n} < {cap} rows must continue at {n}, not {next}",
+                what()
+            );
+        }
+        for (name, dst, w) in [
+            ("obs", &mut r.obs, od),
+            ("next_obs", &mut r.next_obs, od),
+            ("act", &mut r.act, ad),
+            ("rew", &mut r.rew, 1),
+            ("live", &mut r.live, 1),
+        ] {
+            let t = get(name)?;
+            if t.size() != [n as i64, w as i64] || t.kind() != Kind::Float {
+                bail!(
+                    "{}: {name} is {:?} {:?}, expected [{n}, {w}] Float",
+                    what(),
+                    t.kind(),
+                    t.size()
+                );
+            }
+            let v = Vec::<f32>::try_from(&t.flatten(0, -1))
+                .with_context(|| format!("{}: reading {name}", what()))?;
+            dst[..n * w].copy_from_slice(&v);
+        }
+        r.len = n;
+        r.next = next as usize;
+        Ok((r, steps as u64))
+    }
+}
+
+/// The replay file beside an expert file.
+pub fn replay_path(expert: &Path) -> PathBuf {
+    let mut s = expert.as_os_str().to_owned();
+    s.push(".replay.safetensors");
+    PathBuf::from(s)
 }
 
 /// Normalises the first `p` entries of rows of `od` floats at `idx` of `src`.
@@ -288,7 +397,6 @@ fn update(
     opts: &mut [nn::Optimizer; 3],
     replay: &Replay,
     cfg: &SacConfig,
-    p: usize,
     target_entropy: f64,
     mean: &[f32],
     std: &[f32],
@@ -299,8 +407,8 @@ fn update(
     let idx: Vec<usize> = (0..cfg.batch)
         .map(|_| rng.random_range(0..replay.len))
         .collect();
-    let s = gather_norm(&replay.obs, od, p, &idx, mean, std);
-    let s2 = gather_norm(&replay.next_obs, od, p, &idx, mean, std);
+    let s = gather_norm(&replay.obs, od, od, &idx, mean, std);
+    let s2 = gather_norm(&replay.next_obs, od, od, &idx, mean, std);
     let mut a = Vec::with_capacity(idx.len() * ad);
     let (mut r, mut live) = (Vec::with_capacity(idx.len()), Vec::with_capacity(idx.len()));
     for &i in &idx {
@@ -446,7 +554,7 @@ fn export(
         vec![0.0; replay.ad]
     } else {
         let idx: Vec<usize> = (0..n).map(|b| replay.newest(b)).collect();
-        let s = gather_norm(&replay.obs, od, p, &idx, mean, std);
+        let s = gather_norm(&replay.obs, replay.od, p, &idx, mean, std);
         tch::no_grad(|| tensor_to_vec(&sac.actor.dist(&s).1.mean_dim(0, false, Kind::Float)))
     };
     (sizes, params, log_std)
@@ -509,17 +617,41 @@ pub fn train_expert_sac(
         load_state(&sac, &mut stats, &state_path(&cfg.out))?;
         env_steps = old.meta.trained_steps;
     }
-    // A resumed run refills its buffer with the policy; a fresh one explores at random.
+    let start_steps = env_steps;
+    let rpath = replay_path(&cfg.out);
+    let mut replay = if cfg.resume && rpath.exists() {
+        let (r, at) = Replay::load(&rpath, sc.buffer, p, ad)?;
+        tracing::info!(
+            "resuming at {env_steps} steps with the {} transitions of {} (saved at {at} steps)",
+            r.len,
+            rpath.display()
+        );
+        r
+    } else {
+        if !cfg.resume && rpath.exists() {
+            // Another run's buffer: a later --resume of this run must not read it.
+            std::fs::remove_file(&rpath)
+                .with_context(|| format!("removing the old replay {}", rpath.display()))?;
+        }
+        Replay::new(sc.buffer, p, ad)
+    };
+    // A fresh run explores at random; a resumed one without a saved buffer refills it
+    // with the policy before updating; one with a buffer updates at once.
     let random_until = if cfg.resume {
         0
     } else {
         sc.learning_starts as u64
     };
-    let update_from = env_steps + sc.learning_starts.max(sc.batch) as u64;
-    let mut replay = Replay::new(sc.buffer, od, ad);
+    let update_from = if replay.len >= sc.batch.max(1) {
+        env_steps
+    } else {
+        env_steps + sc.learning_starts.max(sc.batch) as u64
+    };
     let mut csv = open_csv(cfg)?;
     let log_every = sc.log_every as u64;
-    let mut it = (env_steps / log_every) as usize + 1;
+    // A stop between rows (Ctrl-C) wrote a partial row numbered as the next full one:
+    // count from past it.
+    let mut it = env_steps.div_ceil(log_every) as usize + 1;
     let mut obs = vec![0.0f32; od];
     let mut next = vec![0.0f32; od];
     let mut act = vec![0.0f32; ad];
@@ -560,7 +692,7 @@ pub fn train_expert_sac(
         let out = env.step(&act, &mut next)?;
         env.task_rewards(&mut rewards);
         let r = rewards[cfg.mode];
-        replay.push(&obs, &act, r, &next, out.terminated);
+        replay.push(&obs[..p], &act, r, &next[..p], out.terminated);
         stats.update(&next);
         env_steps += 1;
         ep_ret += r as f64;
@@ -585,7 +717,6 @@ pub fn train_expert_sac(
                     &mut opts,
                     &replay,
                     sc,
-                    p,
                     target_entropy,
                     mean,
                     std,
@@ -630,10 +761,14 @@ pub fn train_expert_sac(
         }
     }
     csv.flush()?;
-    match expert {
-        Some(e) => Ok(e),
-        None => save(cfg, &spec, &sac, &replay, p, &stats, env_steps, &recent),
+    let expert = match expert {
+        Some(e) => e,
+        None => save(cfg, &spec, &sac, &replay, p, &stats, env_steps, &recent)?,
+    };
+    if sc.save_replay && env_steps > start_steps && replay.len > 0 {
+        replay.save(&rpath, env_steps)?;
     }
+    Ok(expert)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -799,5 +934,46 @@ mod tests {
             err.contains("no tensor") && err.contains("s.safetensors"),
             "{err}"
         );
+    }
+    #[test]
+    fn the_replay_file_round_trips_wrapped_or_not_and_a_mismatch_is_refused_by_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.safetensors.replay.safetensors");
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        // 3 pushes (not wrapped), then 11 (wrapped past the capacity of 8).
+        for pushes in [3, 11] {
+            let mut r = Replay::new(8, 4, 2);
+            for i in 0..pushes {
+                let o: Vec<f32> = (0..4).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let o2: Vec<f32> = (0..4).map(|_| rng.random_range(-1.0..1.0)).collect();
+                r.push(&o, &[i as f32, -1.0], i as f32 * 0.5, &o2, i % 4 == 3);
+            }
+            r.save(&path, 1234).unwrap();
+            let (b, at) = Replay::load(&path, 8, 4, 2).unwrap();
+            assert_eq!(at, 1234);
+            assert_eq!((b.len, b.next), (r.len, r.next));
+            assert_eq!((&b.obs, &b.next_obs), (&r.obs, &r.next_obs));
+            assert_eq!((&b.act, &b.rew, &b.live), (&r.act, &r.rew, &r.live));
+            assert_eq!(b.newest(0), r.newest(0));
+        }
+        for ((cap, od, ad), field) in [
+            ((9, 4, 2), "sac.buffer is 8 there, 9 in this run"),
+            ((8, 5, 2), "sac.obs_prefix) is 4 there, 5 in this run"),
+            ((8, 4, 3), "action entries is 2 there, 3 in this run"),
+        ] {
+            let err = format!("{:#}", Replay::load(&path, cap, od, ad).err().unwrap());
+            assert!(
+                err.contains(field) && err.contains("m.safetensors.replay"),
+                "{err}"
+            );
+        }
+        // A file that is not a replay (a state file, say) names the missing tensor.
+        Tensor::write_safetensors(
+            &[("x", Tensor::zeros([2], (Kind::Float, tch::Device::Cpu)))],
+            &path,
+        )
+        .unwrap();
+        let err = format!("{:#}", Replay::load(&path, 8, 4, 2).err().unwrap());
+        assert!(err.contains("no tensor meta"), "{err}");
     }
 }

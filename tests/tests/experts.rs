@@ -286,7 +286,7 @@ const SAC_QUICK: &[&str] = &[
 ];
 
 /// `--algo sac`: the same seed gives the same expert bit for bit, `eval` reads it,
-/// and `--resume` continues its step count and CSV.
+/// and `--resume` continues its step count, CSV and replay buffer.
 #[test]
 fn sac_experts_are_deterministic_evaluate_and_resume() {
     let dir = tempfile::tempdir().unwrap();
@@ -302,6 +302,51 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
     assert_eq!(rows.len(), 4, "{rows:?}");
     assert!(rows[3].starts_with("3,300,"), "{rows:?}");
 
+    // The stop wrote the replay buffer; a resume with another buffer size is refused
+    // naming the file and the field, before anything is written.
+    let replay_of = |p: &std::path::Path| {
+        let mut s = p.as_os_str().to_owned();
+        s.push(".replay.safetensors");
+        std::path::PathBuf::from(s)
+    };
+    assert!(replay_of(&a).is_file());
+    let files = |p: &std::path::Path| {
+        ["", ".csv", ".state.safetensors", ".replay.safetensors"].map(|x| {
+            let mut s = p.as_os_str().to_owned();
+            s.push(x);
+            std::fs::read(s).unwrap()
+        })
+    };
+    let before = files(&a);
+    let a_s = a.to_string_lossy().into_owned();
+    let mut args = vec![
+        "experts",
+        "train",
+        "--env",
+        "reacher",
+        "--set",
+        "env.n_modes=2",
+        "--mode",
+        "1",
+        "--out",
+        &a_s,
+        "--resume",
+    ];
+    args.extend_from_slice(SAC_QUICK);
+    args.extend_from_slice(&["--set", "sac.buffer=6000", "--steps", "500"]);
+    let o = ess(&args);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("mode1.safetensors.replay.safetensors")
+            && stderr(&o).contains("sac.buffer is 5000 there, 6000 in this run"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(
+        files(&a) == before,
+        "a refused resume changed the run's files"
+    );
+
     let mut resume = SAC_QUICK.to_vec();
     resume.push("--resume");
     let said = train_to(&a, "reacher", "env.n_modes=2", 1, &resume, "500");
@@ -314,6 +359,17 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
         tensor_bytes(&b),
         "resuming changed nothing"
     );
+    assert_ne!(
+        files(&a)[3],
+        before[3],
+        "the resumed stop kept the old replay"
+    );
+    // A fresh run over the same path drops the old buffer; `sac.save_replay=false`
+    // writes none.
+    let mut no_replay = SAC_QUICK.to_vec();
+    no_replay.extend_from_slice(&["--set", "sac.save_replay=false"]);
+    train_to(&a, "reacher", "env.n_modes=2", 1, &no_replay, "300");
+    assert!(!replay_of(&a).exists());
 
     // Mode 0 by PPO beside mode 1 by SAC: eval scores both from the same directory.
     train(&dir.path().join("a"), "reacher", "env.n_modes=2", 0);
