@@ -417,6 +417,14 @@ pub(crate) fn open_csv(cfg: &ExpertTrainConfig) -> Result<std::io::BufWriter<std
     Ok(csv)
 }
 
+/// The iteration number of the last row of the CSV at `path` (none if it has no data
+/// row or cannot be read): a resumed run numbers its rows on from it.
+pub(crate) fn last_csv_iteration(path: &Path) -> Option<usize> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let last = text.lines().rev().find(|l| !l.trim().is_empty())?;
+    last.split(',').next()?.trim().parse().ok()
+}
+
 /// The meta of an expert trained by `cfg`: mean return over `recent` episodes,
 /// `learner` appended to the generator (e.g. " (sac)").
 pub(crate) fn expert_meta(

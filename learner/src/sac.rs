@@ -56,7 +56,8 @@ use tch::nn::{Module, OptimizerConfig};
 use tch::{Kind, Tensor, nn};
 
 use crate::experts::{
-    ExpertIteration, ExpertTrainConfig, RunningStats, expert_meta, open_csv, state_path,
+    ExpertIteration, ExpertTrainConfig, RunningStats, csv_path, expert_meta, last_csv_iteration,
+    open_csv, state_path,
 };
 use crate::nets::{Mlp, tensor_2d, tensor_to_vec};
 
@@ -628,7 +629,14 @@ pub fn train_expert_sac(
         );
         r
     } else {
-        if !cfg.resume && rpath.exists() {
+        if cfg.resume {
+            tracing::warn!(
+                "no replay {} to resume with: refilling the buffer with the policy for {} \
+                 steps before updating",
+                rpath.display(),
+                sc.learning_starts.max(sc.batch)
+            );
+        } else if rpath.exists() {
             // Another run's buffer: a later --resume of this run must not read it.
             std::fs::remove_file(&rpath)
                 .with_context(|| format!("removing the old replay {}", rpath.display()))?;
@@ -649,9 +657,12 @@ pub fn train_expert_sac(
     };
     let mut csv = open_csv(cfg)?;
     let log_every = sc.log_every as u64;
-    // A stop between rows (Ctrl-C) wrote a partial row numbered as the next full one:
-    // count from past it.
-    let mut it = env_steps.div_ceil(log_every) as usize + 1;
+    // Rows number on from the CSV's last (a stop between rows wrote a partial one).
+    let mut it = cfg
+        .resume
+        .then(|| last_csv_iteration(&csv_path(&cfg.out)))
+        .flatten()
+        .map_or(env_steps.div_ceil(log_every) as usize + 1, |i| i + 1);
     let mut obs = vec![0.0f32; od];
     let mut next = vec![0.0f32; od];
     let mut act = vec![0.0f32; ad];
