@@ -32,6 +32,20 @@ fn train_to(
     extra: &[&str],
     steps: &str,
 ) -> String {
+    let o = train_output(out, env, n_modes, mode, extra, steps);
+    assert!(o.status.success(), "experts train failed: {}", stderr(&o));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// [`train_to`]'s run, whatever its outcome.
+fn train_output(
+    out: &std::path::Path,
+    env: &str,
+    n_modes: &str,
+    mode: usize,
+    extra: &[&str],
+    steps: &str,
+) -> std::process::Output {
     let mode_s = mode.to_string();
     let out_s = out.to_string_lossy().into_owned();
     let mut args = vec![
@@ -41,9 +55,7 @@ fn train_to(
     args.extend_from_slice(QUICK);
     let at = args.len() - QUICK.len() + 1;
     args[at] = steps;
-    let o = ess(&args);
-    assert!(o.status.success(), "experts train failed: {}", stderr(&o));
-    String::from_utf8_lossy(&o.stdout).into_owned()
+    ess(&args)
 }
 
 fn train(dir: &std::path::Path, env: &str, n_modes: &str, mode: usize) -> std::path::PathBuf {
@@ -318,23 +330,9 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
         })
     };
     let before = files(&a);
-    let a_s = a.to_string_lossy().into_owned();
-    let mut args = vec![
-        "experts",
-        "train",
-        "--env",
-        "reacher",
-        "--set",
-        "env.n_modes=2",
-        "--mode",
-        "1",
-        "--out",
-        &a_s,
-        "--resume",
-    ];
-    args.extend_from_slice(SAC_QUICK);
-    args.extend_from_slice(&["--set", "sac.buffer=6000", "--steps", "500"]);
-    let o = ess(&args);
+    let mut args = SAC_QUICK.to_vec();
+    args.extend_from_slice(&["--resume", "--set", "sac.buffer=6000"]);
+    let o = train_output(&a, "reacher", "env.n_modes=2", 1, &args, "500");
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("mode1.safetensors.replay.safetensors")
