@@ -151,18 +151,26 @@ impl RunningStats {
     }
 }
 
+/// `expert`'s path with `suffix` appended (`mode1.safetensors` -> `mode1.safetensors.csv`).
+fn beside(expert: &Path, suffix: &str) -> PathBuf {
+    let mut s = expert.as_os_str().to_owned();
+    s.push(suffix);
+    PathBuf::from(s)
+}
+
 /// The state file beside an expert file.
 pub fn state_path(expert: &Path) -> PathBuf {
-    let mut s = expert.as_os_str().to_owned();
-    s.push(".state.safetensors");
-    PathBuf::from(s)
+    beside(expert, ".state.safetensors")
 }
 
 /// The per-iteration CSV beside an expert file.
 pub fn csv_path(expert: &Path) -> PathBuf {
-    let mut s = expert.as_os_str().to_owned();
-    s.push(".csv");
-    PathBuf::from(s)
+    beside(expert, ".csv")
+}
+
+/// The SAC replay buffer beside an expert file.
+pub fn replay_path(expert: &Path) -> PathBuf {
+    beside(expert, ".replay.safetensors")
 }
 
 /// Episode returns ending in `chunks`, continuing each stream's open episode in `open`.

@@ -42,8 +42,9 @@
 //! The replay keeps only the observation entries the networks read (`obs_prefix`), raw
 //! (normalised when a batch is drawn).
 
+use std::collections::HashMap;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -57,7 +58,7 @@ use tch::{Kind, Tensor, nn};
 
 use crate::experts::{
     ExpertIteration, ExpertTrainConfig, RunningStats, csv_path, expert_meta, last_csv_iteration,
-    open_csv, state_path,
+    open_csv, replay_path, state_path,
 };
 use crate::nets::{Mlp, tensor_2d, tensor_to_vec};
 
@@ -213,10 +214,7 @@ impl Replay {
             ("rew", rows(&self.rew, 1)),
             ("live", rows(&self.live, 1)),
         ];
-        let tmp = path.with_extension("tmp");
-        Tensor::write_safetensors(&named, &tmp)
-            .with_context(|| format!("writing SAC replay {}", tmp.display()))?;
-        std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+        write_via_tmp(&named, path, "SAC replay")
     }
 
     /// Reads what [`Replay::save`] wrote, for a run with capacity `cap`, `od` observed
@@ -224,10 +222,7 @@ impl Replay {
     /// A file of another shape is refused naming the file, the field and both values.
     fn load(path: &Path, cap: usize, od: usize, ad: usize) -> Result<(Self, u64)> {
         let what = || format!("SAC replay {}", path.display());
-        let tensors: std::collections::HashMap<String, Tensor> = Tensor::read_safetensors(path)
-            .with_context(|| format!("reading {}", what()))?
-            .into_iter()
-            .collect();
+        let tensors = read_named(path, &what())?;
         let get = |name: &str| {
             tensors
                 .get(name)
@@ -291,13 +286,6 @@ impl Replay {
         r.next = next as usize;
         Ok((r, steps as u64))
     }
-}
-
-/// The replay file beside an expert file.
-pub fn replay_path(expert: &Path) -> PathBuf {
-    let mut s = expert.as_os_str().to_owned();
-    s.push(".replay.safetensors");
-    PathBuf::from(s)
 }
 
 /// Normalises the first `p` entries of rows of `od` floats at `idx` of `src`.
@@ -475,21 +463,31 @@ fn save_state(sac: &Sac, stats: &RunningStats, path: &std::path::Path) -> Result
     named.push(("stats/mean".into(), f64s(&stats.mean)));
     named.push(("stats/m2".into(), f64s(&stats.m2)));
     named.sort_by(|a, b| a.0.cmp(&b.0));
+    write_via_tmp(&named, path, "SAC state")
+}
+
+/// Writes `named` to `path` through `<path minus extension>.tmp` and a rename, so a stop
+/// mid-write leaves the old file; errors name `what` and the file.
+fn write_via_tmp<S: AsRef<str>>(named: &[(S, Tensor)], path: &Path, what: &str) -> Result<()> {
     let tmp = path.with_extension("tmp");
-    Tensor::write_safetensors(&named, &tmp)
-        .with_context(|| format!("writing SAC state {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))?;
-    Ok(())
+    Tensor::write_safetensors(named, &tmp)
+        .with_context(|| format!("writing {what} {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+}
+
+/// Every tensor of the safetensors file at `path` by name; an error says "reading `what`".
+fn read_named(path: &Path, what: &str) -> Result<HashMap<String, Tensor>> {
+    Ok(Tensor::read_safetensors(path)
+        .with_context(|| format!("reading {what}"))?
+        .into_iter()
+        .collect())
 }
 
 /// Loads what [`save_state`] wrote into `sac` and `stats`; names the file and the
 /// missing or misshapen tensor on error.
 fn load_state(sac: &Sac, stats: &mut RunningStats, path: &std::path::Path) -> Result<()> {
     let what = || format!("SAC training state {}", path.display());
-    let tensors: std::collections::HashMap<String, Tensor> = Tensor::read_safetensors(path)
-        .with_context(|| format!("reading {}", what()))?
-        .into_iter()
-        .collect();
+    let tensors = read_named(path, &what())?;
     let get = |name: &str, shape: &[i64]| -> Result<&Tensor> {
         let t = tensors.get(name).with_context(|| {
             format!(
