@@ -22,22 +22,14 @@ const QUICK: &[&str] = &[
     "run.torch_threads=1",
 ];
 
-/// `ess experts train --env env --set n_modes --mode mode --out out [extra] QUICK`, with
-/// `--steps steps`; asserts success and returns stdout.
-fn train_to(
-    out: &std::path::Path,
-    env: &str,
-    n_modes: &str,
-    mode: usize,
-    extra: &[&str],
-    steps: &str,
-) -> String {
-    let o = train_output(out, env, n_modes, mode, extra, steps);
+/// The stdout of a run that must have succeeded (else the test fails with its stderr).
+fn ok_stdout(o: std::process::Output) -> String {
     assert!(o.status.success(), "experts train failed: {}", stderr(&o));
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
-/// [`train_to`]'s run, whatever its outcome.
+/// `ess experts train --env env --set n_modes --mode mode --out out [extra] QUICK`, with
+/// `--steps steps`, whatever its outcome.
 fn train_output(
     out: &std::path::Path,
     env: &str,
@@ -60,7 +52,7 @@ fn train_output(
 
 fn train(dir: &std::path::Path, env: &str, n_modes: &str, mode: usize) -> std::path::PathBuf {
     let out = dir.join(env).join(format!("mode{mode}.safetensors"));
-    train_to(&out, env, n_modes, mode, &[], QUICK[1]);
+    ok_stdout(train_output(&out, env, n_modes, mode, &[], QUICK[1]));
     out
 }
 
@@ -105,7 +97,14 @@ fn experts_train_then_eval_reports_every_mode_against_random() {
     }
     // Resuming continues the step count.
     let out = dir.path().join("reacher/mode0.safetensors");
-    let stdout = train_to(&out, "reacher", "env.n_modes=2", 0, &["--resume"], "1600");
+    let stdout = ok_stdout(train_output(
+        &out,
+        "reacher",
+        "env.n_modes=2",
+        0,
+        &["--resume"],
+        "1600",
+    ));
     assert!(stdout.contains("1600 steps"), "{stdout}");
 }
 
@@ -193,7 +192,14 @@ fn init_from_another_mode_equals_resuming_a_relabelled_copy() {
     let dir = tempfile::tempdir().unwrap();
     let src = train(dir.path(), "reacher", "env.n_modes=2", 1);
     let run = |out: &std::path::Path, start: &[&str]| {
-        train_to(out, "reacher", "env.n_modes=2", 0, start, "1600")
+        ok_stdout(train_output(
+            out,
+            "reacher",
+            "env.n_modes=2",
+            0,
+            start,
+            "1600",
+        ))
     };
     let warm = dir.path().join("warm/mode0.safetensors");
     let src_s = src.to_string_lossy().into_owned();
@@ -305,7 +311,14 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
     let a = dir.path().join("a/reacher/mode1.safetensors");
     let b = dir.path().join("b/reacher/mode1.safetensors");
     for out in [&a, &b] {
-        let said = train_to(out, "reacher", "env.n_modes=2", 1, SAC_QUICK, "300");
+        let said = ok_stdout(train_output(
+            out,
+            "reacher",
+            "env.n_modes=2",
+            1,
+            SAC_QUICK,
+            "300",
+        ));
         assert!(said.contains("300 steps"), "{said}");
     }
     assert_eq!(tensor_bytes(&a), tensor_bytes(&b));
@@ -316,18 +329,16 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
 
     // The stop wrote the replay buffer; a resume with another buffer size is refused
     // naming the file and the field, before anything is written.
-    let replay_of = |p: &std::path::Path| {
+    let with = |p: &std::path::Path, suffix: &str| {
         let mut s = p.as_os_str().to_owned();
-        s.push(".replay.safetensors");
+        s.push(suffix);
         std::path::PathBuf::from(s)
     };
+    let replay_of = |p: &std::path::Path| with(p, ".replay.safetensors");
     assert!(replay_of(&a).is_file());
     let files = |p: &std::path::Path| {
-        ["", ".csv", ".state.safetensors", ".replay.safetensors"].map(|x| {
-            let mut s = p.as_os_str().to_owned();
-            s.push(x);
-            std::fs::read(s).unwrap()
-        })
+        ["", ".csv", ".state.safetensors", ".replay.safetensors"]
+            .map(|x| std::fs::read(with(p, x)).unwrap())
     };
     let before = files(&a);
     let mut args = SAC_QUICK.to_vec();
@@ -350,7 +361,14 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
     // Stops between rows (350, 550) write partial rows; each resume numbers its rows
     // on from the CSV's last one.
     for steps in ["350", "550", "600"] {
-        let said = train_to(&a, "reacher", "env.n_modes=2", 1, &resume, steps);
+        let said = ok_stdout(train_output(
+            &a,
+            "reacher",
+            "env.n_modes=2",
+            1,
+            &resume,
+            steps,
+        ));
         assert!(said.contains(&format!("{steps} steps")), "{said}");
     }
     let rows = csv_without_seconds(&a);
@@ -379,7 +397,14 @@ fn sac_experts_are_deterministic_evaluate_and_resume() {
     // writes none.
     let mut no_replay = SAC_QUICK.to_vec();
     no_replay.extend_from_slice(&["--set", "sac.save_replay=false"]);
-    train_to(&a, "reacher", "env.n_modes=2", 1, &no_replay, "300");
+    ok_stdout(train_output(
+        &a,
+        "reacher",
+        "env.n_modes=2",
+        1,
+        &no_replay,
+        "300",
+    ));
     assert!(!replay_of(&a).exists());
 
     // Mode 0 by PPO beside mode 1 by SAC: eval scores both from the same directory.
