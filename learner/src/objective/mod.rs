@@ -9,10 +9,12 @@
 //! | contrastive NT-Xent on Q_c | [`contrastive`] | Elastic-InfoGAN |
 //! | RIM with the p(c) prior | [`rim`] | Eq. 8 |
 //! | policy reward | [`reward`] | Eqs. 1, 3, 5, 9 |
+//! | the weighted sum of the D/Q terms, and the reward weights | [`combined`] | Eq. 9 |
 //!
 //! A preset (`deploy/presets/*.toml`) is only a choice of weights and prior; the
 //! learner code is the same for all seven methods of Table 1.
 
+pub mod combined;
 pub mod contrastive;
 pub mod disc_bce;
 pub mod grad_penalty;
