@@ -1,0 +1,319 @@
+//! The training loop (Algorithm 1), one for all seven methods, as a [`Trainer`] whose
+//! methods are the algorithm's stages:
+//!
+//! | stage | method | file |
+//! |---|---|---|
+//! | roll out `run.rollout_steps` transitions under (c, eps) | [`Trainer::collect`] | `stages.rs` |
+//! | D, Q_c, Q_eps (and p(c) through RIM) take `disc.steps` steps on Eq. 9's D/Q side | [`Trainer::update_discriminator`] | `stages.rs` |
+//! | policy reward with the updated heads (Eqs. 1, 3, 5, 9) | [`Trainer::policy_rewards`] | `stages.rs` |
+//! | GAE, PPO on policy and value, p(c) through Gumbel-softmax | [`Trainer::update_policy`] | `stages.rs` |
+//! | the paper's evaluation (NMI, ENT, normalised reward) | [`Trainer::evaluate`] | `stages.rs` |
+//! | `metrics.csv`, run log, progress; checkpoints | [`Trainer::record`], [`Trainer::checkpoint`] | this file |
+//!
+//! [`Trainer::new`] (`setup.rs`) builds a run's state from its configuration, or from
+//! its latest checkpoint on `--resume`; [`Trainer::train`] runs the iterations and
+//! [`Trainer::finish`] the final evaluation and `summary.json`. The weighted objective
+//! itself lives in [`crate::objective::combined`].
+
+mod data;
+mod records;
+mod setup;
+mod stages;
+
+pub use data::{
+    CodeReweight, Dims, ExpertData, ObsNorm, Rollout, demo_spec, load_or_generate_demos,
+};
+pub use records::{CSV_HEADER, EncoderAccuracy, IterationLog, PhaseSeconds, Summary, write_atomic};
+pub use setup::{Nets, TrainInputError, actor_seed};
+pub use stages::Rewards;
+
+use crate::eval::Reference;
+use crate::runlog::RunLog;
+use anyhow::{Context, Result};
+use ess_actor::{LatentSpec, RolloutSource};
+use ess_envs::{Demos, EnvSpec, ScriptedExpert};
+use ess_proto::CheckedConfig;
+use rand_chacha::ChaCha8Rng;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// What a caller sees of progress (the CLI draws a bar or prints lines).
+pub trait Progress {
+    /// Called after each iteration.
+    fn iteration(&mut self, it: &IterationLog);
+    /// Free-form status message (set-up phases).
+    fn message(&mut self, msg: &str);
+}
+
+/// Everything `run` produced.
+pub struct RunOutput {
+    /// The summary (also written to `summary.json`).
+    pub summary: Summary,
+}
+
+/// The loop's own state: what a checkpoint saves besides the networks.
+pub struct LoopState {
+    /// Environment steps so far.
+    pub env_steps: usize,
+    /// Iterations done.
+    pub iters_done: usize,
+    /// Summed per-phase seconds.
+    pub phases: PhaseSeconds,
+    /// Evaluation curve `(env steps, NMI, ENT, normalised reward)`.
+    pub curve: Vec<crate::report::CurvePoint>,
+    /// The last iteration's row, written once the next one ran (so the last row can
+    /// take the final evaluation's numbers).
+    pub pending: Option<IterationLog>,
+    /// The learner's random stream (minibatch draws).
+    pub rng: ChaCha8Rng,
+    /// Q_c's running estimate of the demos' mode marginal (`method.disc_code_reweight`).
+    pub qc_marginal: Vec<f64>,
+    /// PPO's reward scaler.
+    pub scaler: crate::ppo::RewardScaler,
+    /// Training seconds before this process (a resumed run).
+    pub wall_before: f64,
+    /// The iteration of the last checkpoint written or loaded.
+    pub last_saved: Option<usize>,
+}
+
+/// One run's state; each method is one stage of Algorithm 1 (see the module docs).
+pub struct Trainer<'c> {
+    cfg: &'c CheckedConfig,
+    out: PathBuf,
+    spec: EnvSpec,
+    dims: Dims,
+    demos: Demos,
+    norm: ObsNorm,
+    expert: ExpertData,
+    reference: Reference,
+    latent: LatentSpec,
+    nets: Nets,
+    actors: Box<dyn RolloutSource>,
+    eval_env: Box<dyn ScriptedExpert>,
+    st: LoopState,
+    /// Finished on every way out (drop), see [`crate::runlog`].
+    runlog: RunLog,
+    csv: BufWriter<std::fs::File>,
+    started: Instant,
+    /// When [`Trainer::train`] started its first iteration in this process.
+    train_started: Instant,
+}
+
+/// Trains with `cfg`, writing into `out`; stops early (and still writes everything)
+/// when `shutdown` is set: the current iteration finishes, a checkpoint is saved, the
+/// final evaluation runs and `summary.json` says `"interrupted": true`.
+pub fn run(
+    cfg: &CheckedConfig,
+    out: &Path,
+    progress: &mut dyn Progress,
+    shutdown: &AtomicBool,
+) -> Result<RunOutput> {
+    let mut t = Trainer::new(cfg, out, progress, false)?;
+    let interrupted = t.train(progress, shutdown)?;
+    t.finish(progress, interrupted)
+}
+
+/// The configuration a run in `out` was started with (its `config.toml`).
+pub fn run_config(out: &Path) -> Result<CheckedConfig> {
+    let p = out.join("config.toml");
+    let text = std::fs::read_to_string(&p).with_context(|| {
+        format!(
+            "reading {} (is {} the output directory of an `ess train` run?)",
+            p.display(),
+            out.display()
+        )
+    })?;
+    let mut b = ess_proto::config::ConfigBuilder::new();
+    b.merge_toml(&p.display().to_string(), &text)?;
+    Ok(b.build()?)
+}
+
+/// Continues the run in `out` from its latest checkpoint
+/// ([`crate::checkpoint`]) with the configuration it was started with, appending to its
+/// `metrics.csv`. The continued run is bit-identical to one never stopped (on the
+/// threaded transport; actor processes start fresh episodes, see
+/// [`crate::checkpoint::TrainState::actors`]).
+pub fn resume(out: &Path, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<RunOutput> {
+    let cfg = run_config(out)?;
+    let mut t = Trainer::new(&cfg, out, progress, true)?;
+    let interrupted = t.train(progress, shutdown)?;
+    t.finish(progress, interrupted)
+}
+
+/// Seed of libtorch's random stream for iteration `it`: re-seeded every iteration, so a
+/// resumed run draws what the uninterrupted one drew.
+fn torch_seed(seed: u64, it: usize) -> i64 {
+    seed.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        .wrapping_add(it as u64) as i64
+}
+
+impl Trainer<'_> {
+    /// Runs the iterations left (all of them, or those after the checkpoint resumed
+    /// from); `Ok(true)` when `shutdown` stopped it early.
+    pub fn train(&mut self, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<bool> {
+        progress.message("training");
+        self.train_started = Instant::now();
+        for it in self.st.iters_done + 1..=self.cfg.run.iterations {
+            if shutdown.load(Ordering::Relaxed) {
+                return Ok(true);
+            }
+            let mut log = self.iteration(it)?;
+            let run = &self.cfg.run;
+            if run.eval_every > 0 && it.is_multiple_of(run.eval_every) && it != run.iterations {
+                let (r, episodes) =
+                    self.evaluate(it, run.eval_episodes_periodic, run.seed ^ 0xE7A1)?;
+                self.runlog.eval_episodes(it, false, &episodes)?;
+                self.st
+                    .curve
+                    .push((self.st.env_steps, r.nmi, r.ent, r.normalized_reward));
+                log.nmi = Some(r.nmi);
+                log.ent = Some(r.ent);
+                log.normalized_reward = Some(r.normalized_reward);
+            }
+            self.record(log, progress)?;
+            if run.checkpoint_every > 0 && it.is_multiple_of(run.checkpoint_every) {
+                self.checkpoint()?;
+            }
+        }
+        Ok(false)
+    }
+
+    /// One iteration of Algorithm 1: collect, D/Q updates, rewards, PPO and p(c).
+    pub fn iteration(&mut self, it: usize) -> Result<IterationLog> {
+        tch::manual_seed(torch_seed(self.cfg.run.seed, it));
+        let mut log = IterationLog {
+            iteration: it,
+            ..Default::default()
+        };
+        let t0 = Instant::now();
+        let rollout = self.collect(it)?;
+        log.rollout_s = t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
+        self.update_discriminator(it, &rollout, &mut log);
+        log.disc_s = t1.elapsed().as_secs_f64();
+        let t2 = Instant::now();
+        let rewards = self.policy_rewards(it, &rollout, &mut log)?;
+        self.update_policy(&rollout, &rewards, &mut log);
+        log.ppo_s = t2.elapsed().as_secs_f64();
+        self.st.phases.add(&log);
+        self.st.env_steps += rollout.len();
+        self.st.iters_done = it;
+        log.env_steps = self.st.env_steps;
+        log.wall_s = self.wall_s();
+        Ok(log)
+    }
+
+    /// Training seconds so far, those of earlier processes of a resumed run included.
+    fn wall_s(&self) -> f64 {
+        self.st.wall_before + self.train_started.elapsed().as_secs_f64()
+    }
+
+    /// Reports an iteration (progress, run log) and writes the row before it to
+    /// `metrics.csv`.
+    pub fn record(&mut self, log: IterationLog, progress: &mut dyn Progress) -> Result<()> {
+        progress.iteration(&log);
+        self.runlog.iteration(&log)?;
+        if let Some(done) = self.st.pending.replace(log) {
+            records::write_csv_row(&mut self.csv, &done)?;
+        }
+        Ok(())
+    }
+
+    /// Saves everything a resume needs after the iterations done (see
+    /// [`crate::checkpoint`]).
+    pub fn checkpoint(&mut self) -> Result<()> {
+        self.csv.flush()?;
+        let it = self.st.iters_done;
+        let mut state = crate::checkpoint::TrainState {
+            format: crate::checkpoint::FORMAT,
+            iteration: it,
+            env_steps: self.st.env_steps,
+            wall_s: self.wall_s(),
+            phases: self.st.phases.clone(),
+            curve: self.st.curve.clone(),
+            pending: self.st.pending.clone(),
+            rng: crate::checkpoint::RngState::of(&self.st.rng),
+            qc_marginal: self.st.qc_marginal.clone(),
+            scaler: self.st.scaler.clone(),
+            adam_steps: Default::default(),
+            actors: setup::actor_states(self.actors.as_mut()),
+        };
+        let n = &self.nets;
+        crate::checkpoint::save(
+            &self.out.join("checkpoints"),
+            [&n.vs, &n.prior_vs, &n.dvs],
+            [&n.ppo.opt, &n.ppo.prior_opt, &n.dopt],
+            &mut state,
+        )?;
+        self.st.last_saved = Some(it);
+        Ok(())
+    }
+
+    /// The last checkpoint (unless the last iteration has one), the final evaluation,
+    /// the figures and `summary.json`.
+    pub fn finish(mut self, progress: &mut dyn Progress, interrupted: bool) -> Result<RunOutput> {
+        let wall = self.wall_s();
+        if self.st.last_saved != Some(self.st.iters_done) {
+            self.checkpoint()?;
+        }
+        progress.message("final evaluation");
+        let done = self.st.iters_done;
+        let (result, episodes) =
+            self.evaluate(done, self.cfg.run.eval_episodes, self.cfg.run.seed ^ 0xF1AA)?;
+        self.runlog.eval_episodes(done, true, &episodes)?;
+        // The final evaluation completes the last iteration's row (no iteration ran: a
+        // row of iteration 0 for the untrained policy).
+        let mut last = self.st.pending.take().unwrap_or_else(|| IterationLog {
+            wall_s: wall,
+            prior: records::prior_string(&self.nets.ppo.prior_probs()),
+            ..Default::default()
+        });
+        last.nmi = Some(result.nmi);
+        last.ent = Some(result.ent);
+        last.normalized_reward = Some(result.normalized_reward);
+        records::write_csv_row(&mut self.csv, &last)?;
+        self.csv.flush()?;
+        self.runlog.iteration(&last)?;
+        let (cfg, k) = (self.cfg, self.dims.codes);
+        if self.spec.name == "traj2d" {
+            let png = self.out.join("trajectories.png");
+            crate::report::plot_traj2d(&png, &self.demos, &episodes, &cfg.method.name, k)?;
+        }
+        let steps = self.st.env_steps;
+        self.st
+            .curve
+            .push((steps, result.nmi, result.ent, result.normalized_reward));
+        let curves = self.out.join("curves.png");
+        crate::report::plot_curves(&curves, &cfg.method.name, &self.st.curve)?;
+        let summary = Summary {
+            method: cfg.method.name.clone(),
+            env: cfg.env.name.clone(),
+            seed: cfg.run.seed,
+            nmi: result.nmi,
+            ent: result.ent,
+            normalized_reward: result.normalized_reward,
+            env_steps: steps,
+            iterations: done,
+            wall_seconds: wall,
+            total_seconds: self.started.elapsed().as_secs_f64(),
+            env_steps_per_second: steps as f64 / wall.max(1e-9),
+            seconds_per_iteration: self.st.phases.mean(done),
+            prior: self.nets.ppo.prior_probs(),
+            classifier_accuracy: self.reference.classifier_accuracy,
+            encoder_accuracy: self.expert.encoder_accuracy(&self.nets.disc, k),
+            eval: result,
+            interrupted,
+        };
+        // The run log is complete before `summary.json` says the run is.
+        let Self { runlog, out, .. } = self;
+        runlog.finish()?;
+        let json = serde_json::to_string_pretty(&summary)?;
+        write_atomic(&out.join("summary.json"), json.as_bytes())?;
+        Ok(RunOutput { summary })
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,356 @@
+//! Building a [`Trainer`]: checks, demonstrations, networks, actors, and on `--resume`
+//! the latest checkpoint.
+
+use super::data::{Dims, ExpertData, ObsNorm, load_or_generate_demos};
+use super::records::{CSV_HEADER, truncate_metrics};
+use super::{LoopState, Progress, Trainer};
+use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
+use crate::nets::{Discriminator, obs_columns};
+use crate::optim::Adam;
+use crate::ppo::PpoLearner;
+use anyhow::{Context, Result, bail};
+use ess_actor::{LatentSpec, RolloutSource, ThreadedActors, Worker};
+use ess_envs::make_env;
+use ess_proto::CheckedConfig;
+use ess_proto::config::ActorTransport;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::io::BufWriter;
+use std::path::Path;
+use std::time::{Duration, Instant};
+use tch::nn;
+
+/// A configuration that the env it names cannot take; the CLI exits 2 on it.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainInputError {
+    /// `disc.obs_prefix` longer than the observation.
+    #[error("disc.obs_prefix = {prefix} exceeds env `{env}`'s observation length {obs_dim}")]
+    DiscObsPrefix {
+        /// The configured prefix.
+        prefix: usize,
+        /// The env's name.
+        env: String,
+        /// Its observation length.
+        obs_dim: usize,
+    },
+}
+
+/// Seed of actor `i`'s random stream: the same on both transports, so one actor process
+/// reproduces one actor thread step for step.
+pub fn actor_seed(seed: u64, i: usize) -> u64 {
+    seed.wrapping_mul(1_000_003).wrapping_add(i as u64)
+}
+
+/// The learner's networks and optimisers: policy and value (`vs`), p(c) (`prior_vs`),
+/// the discriminator body with its heads (`dvs`).
+pub struct Nets {
+    /// Policy and value variables.
+    pub vs: nn::VarStore,
+    /// The p(c) logits.
+    pub prior_vs: nn::VarStore,
+    /// Discriminator variables.
+    pub dvs: nn::VarStore,
+    /// PPO (policy, value, p(c) and their optimisers).
+    pub ppo: PpoLearner,
+    /// D, Q_c, Q_eps.
+    pub disc: Discriminator,
+    /// The discriminator's optimiser.
+    pub dopt: Adam,
+}
+
+impl Nets {
+    /// Fresh networks for `cfg` (libtorch's generator seeded by the caller).
+    pub fn new(cfg: &CheckedConfig, d: Dims) -> Result<Self> {
+        let m = &cfg.method;
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let prior_vs = nn::VarStore::new(tch::Device::Cpu);
+        let dvs = nn::VarStore::new(tch::Device::Cpu);
+        let input = d.obs + 1 + d.codes;
+        let ppo = PpoLearner::new(
+            &vs,
+            &prior_vs,
+            input,
+            d.act,
+            d.codes,
+            &cfg.ppo,
+            m.prior,
+            m.gumbel_tau,
+        )?;
+        let disc = Discriminator::new(
+            dvs.root() / "disc",
+            d.disc_cols + d.act,
+            &cfg.disc.hidden,
+            d.codes,
+        );
+        let dopt = Adam::new(&dvs, cfg.disc.lr)?;
+        Ok(Self {
+            vs,
+            prior_vs,
+            dvs,
+            ppo,
+            disc,
+            dopt,
+        })
+    }
+}
+
+/// The run's actors: threads of this process, or `ess-actor` processes over iceoryx2
+/// shared memory (`run.transport`).
+fn rollout_source(
+    cfg: &CheckedConfig,
+    latent: LatentSpec,
+    k: usize,
+) -> Result<Box<dyn RolloutSource>> {
+    let n = cfg.run.actors;
+    let seeds: Vec<u64> = (0..n).map(|i| actor_seed(cfg.run.seed, i)).collect();
+    match cfg.run.transport {
+        ActorTransport::Threads => {
+            let workers: Vec<Worker> = seeds
+                .iter()
+                .map(|&s| -> Result<Worker> {
+                    let env = make_env(&cfg.env.name, cfg.env.n_modes)?;
+                    Ok(Worker::new(env, s, k))
+                })
+                .collect::<Result<_>>()?;
+            Ok(Box::new(ThreadedActors::new(workers, latent)))
+        }
+        ActorTransport::Processes => {
+            let actors = ShmActors::new(ShmActorsConfig {
+                run_id: new_run_id(),
+                binary: actor_binary()?,
+                env: cfg.env.name.clone(),
+                n_modes: cfg.env.n_modes,
+                latent,
+                max_steps: cfg.run.rollout_steps.div_ceil(n),
+                seeds,
+                heartbeat_timeout: Duration::from_secs_f64(cfg.run.actor_timeout_s),
+                // Process start and env construction (MuJoCo model, expert weights).
+                startup_timeout: Duration::from_secs(30),
+                plain_env: false,
+                task_mode: None,
+            })?;
+            tracing::info!(run_id = actors.run_id(), pids = ?actors.pids(), "actor processes started");
+            Ok(Box::new(actors))
+        }
+    }
+}
+
+/// The actors' states for a checkpoint; none where the transport does not carry them
+/// (actor processes; `--resume` says so) or could not give them (logged).
+pub(super) fn actor_states(actors: &mut dyn RolloutSource) -> Vec<crate::checkpoint::SavedWorker> {
+    match actors.snapshot() {
+        Ok(Some(states)) => states.iter().map(Into::into).collect(),
+        Ok(None) => Vec::new(),
+        Err(e) => {
+            tracing::warn!(error = %e, "checkpoint without actor states");
+            Vec::new()
+        }
+    }
+}
+
+/// Sets libtorch's thread count (`run.torch_threads`, 0: one per core) and seeds it.
+fn init_torch(cfg: &CheckedConfig) {
+    let threads = if cfg.run.torch_threads > 0 {
+        cfg.run.torch_threads
+    } else {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    };
+    tch::set_num_threads(threads as i32);
+    tch::manual_seed(cfg.run.seed as i64);
+}
+
+impl LoopState {
+    /// A fresh run's state.
+    fn fresh(cfg: &CheckedConfig) -> Self {
+        let seed = cfg.run.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 1;
+        let k = cfg.env.n_modes;
+        Self {
+            env_steps: 0,
+            iters_done: 0,
+            phases: Default::default(),
+            curve: Vec::new(),
+            pending: None,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            qc_marginal: vec![1.0 / k as f64; k],
+            scaler: Default::default(),
+            wall_before: 0.0,
+            last_saved: None,
+        }
+    }
+
+    /// The state of the latest checkpoint under `ckpt_dir`, loading the networks into
+    /// `nets` and the actors' states into `actors`.
+    fn restore(
+        ckpt_dir: &Path,
+        nets: &mut Nets,
+        actors: &mut dyn RolloutSource,
+        k: usize,
+        progress: &mut dyn Progress,
+    ) -> Result<Self> {
+        let dir = crate::checkpoint::latest(ckpt_dir)?.with_context(|| {
+            format!(
+                "no complete checkpoint under {} to resume from",
+                ckpt_dir.display()
+            )
+        })?;
+        progress.message(&format!("resuming from {}", dir.display()));
+        let n = nets;
+        let st = crate::checkpoint::load(
+            &dir,
+            [&mut n.vs, &mut n.prior_vs, &mut n.dvs],
+            [&mut n.ppo.opt, &mut n.ppo.prior_opt, &mut n.dopt],
+        )?;
+        if st.qc_marginal.len() != k {
+            bail!(
+                "{}: qc_marginal has {} values for env.n_modes = {k}",
+                dir.display(),
+                st.qc_marginal.len()
+            );
+        }
+        if st.actors.is_empty() {
+            tracing::warn!(
+                checkpoint = %dir.display(),
+                "the checkpoint holds no actor states: actors start fresh episodes, so the resumed run is not bit-identical to an uninterrupted one"
+            );
+        } else {
+            let states = st
+                .actors
+                .iter()
+                .map(|a| a.to_state())
+                .collect::<Result<Vec<_>>>()?;
+            actors
+                .restore(&states)
+                .with_context(|| format!("{}: restoring the actors", dir.display()))?;
+        }
+        Ok(Self {
+            env_steps: st.env_steps,
+            iters_done: st.iteration,
+            phases: st.phases,
+            curve: st.curve,
+            pending: st.pending,
+            rng: st.rng.rng()?,
+            qc_marginal: st.qc_marginal,
+            scaler: st.scaler,
+            wall_before: st.wall_s,
+            last_saved: Some(st.iteration),
+        })
+    }
+}
+
+/// The run log and `metrics.csv`, created (a fresh run) or reopened after the
+/// checkpoint's iteration (a resumed one).
+fn open_logs(
+    cfg: &CheckedConfig,
+    out: &Path,
+    st: &LoopState,
+    resuming: bool,
+) -> Result<(crate::runlog::RunLog, BufWriter<std::fs::File>)> {
+    let metrics = out.join("metrics.csv");
+    let runlog = if resuming {
+        truncate_metrics(&metrics, st.iters_done)?;
+        crate::runlog::RunLog::reopen(&out.join("run.mcap"), cfg, st.iters_done)?
+    } else {
+        std::fs::write(&metrics, format!("{CSV_HEADER}\n"))
+            .with_context(|| format!("creating {}", metrics.display()))?;
+        crate::runlog::RunLog::create(&out.join("run.mcap"), cfg)?
+    };
+    let csv = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&metrics)
+        .with_context(|| format!("opening {}", metrics.display()))?;
+    Ok((runlog, BufWriter::new(csv)))
+}
+
+impl<'c> Trainer<'c> {
+    /// A run of `cfg` writing into `out`, or (`resuming`) the run there continued from
+    /// its latest checkpoint. Input errors are found before anything is written or the
+    /// demonstrations (minutes) are generated.
+    pub fn new(
+        cfg: &'c CheckedConfig,
+        out: &Path,
+        progress: &mut dyn Progress,
+        resuming: bool,
+    ) -> Result<Self> {
+        let started = Instant::now();
+        let mut eval_env = make_env(&cfg.env.name, cfg.env.n_modes)?;
+        let spec = eval_env.spec().clone();
+        let disc_cols = obs_columns(cfg.disc.obs_prefix, spec.obs_dim).ok_or_else(|| {
+            TrainInputError::DiscObsPrefix {
+                prefix: cfg.disc.obs_prefix,
+                env: spec.name.clone(),
+                obs_dim: spec.obs_dim,
+            }
+        })?;
+        std::fs::create_dir_all(out.join("checkpoints"))
+            .with_context(|| format!("creating output dir {}", out.display()))?;
+        if !resuming {
+            std::fs::write(out.join("config.toml"), cfg.to_toml())
+                .with_context(|| format!("writing {}", out.join("config.toml").display()))?;
+        }
+        init_torch(cfg);
+        progress.message("demonstrations");
+        let demos = load_or_generate_demos(cfg)?;
+        if demos.meta.obs_dim != spec.obs_dim || demos.meta.act_dim != spec.act_dim {
+            bail!(
+                "dataset dims obs {} / act {} do not match env `{}` (obs {} / act {})",
+                demos.meta.obs_dim,
+                demos.meta.act_dim,
+                spec.name,
+                spec.obs_dim,
+                spec.act_dim
+            );
+        }
+        let dims = Dims {
+            obs: spec.obs_dim,
+            act: spec.act_dim,
+            codes: cfg.env.n_modes,
+            disc_cols,
+        };
+        let (mean, std) = crate::classifier::feature_stats(&demos.unlabeled.obs, dims.obs);
+        let norm = ObsNorm { mean, std };
+        let expert = ExpertData::new(&demos, &norm, dims);
+        progress.message("behaviour classifier");
+        let reference = crate::eval::build_reference(
+            eval_env.as_mut(),
+            cfg.run.reference_episodes.max(1),
+            cfg.demos.seed ^ 0xC1A5,
+        )?;
+        let m = &cfg.method;
+        let latent = LatentSpec {
+            prior: m.prior,
+            n_codes: dims.codes,
+            tau: m.gumbel_tau as f32,
+            use_eps: m.use_eps,
+        };
+        let mut nets = Nets::new(cfg, dims)?;
+        let mut actors = rollout_source(cfg, latent, dims.codes)?;
+        let st = if resuming {
+            let ckpt = out.join("checkpoints");
+            LoopState::restore(&ckpt, &mut nets, actors.as_mut(), dims.codes, progress)?
+        } else {
+            LoopState::fresh(cfg)
+        };
+        let (runlog, csv) = open_logs(cfg, out, &st, resuming)?;
+        Ok(Self {
+            cfg,
+            out: out.to_owned(),
+            spec,
+            dims,
+            demos,
+            norm,
+            expert,
+            reference,
+            latent,
+            nets,
+            actors,
+            eval_env,
+            st,
+            runlog,
+            csv,
+            started,
+            train_started: Instant::now(),
+        })
+    }
+}

@@ -1,0 +1,257 @@
+//! The stages of one iteration of Algorithm 1, each a [`Trainer`] method.
+
+use super::data::{CodeReweight, Rollout, sample_idx};
+use super::records::prior_string;
+use super::{IterationLog, Trainer};
+use crate::eval::EvalResult;
+use crate::nets::{export_policy, tensor_2d, tensor_to_vec};
+use crate::objective::combined::{DiscBatch, DiscTerms, DiscWeights, disc_objective};
+use crate::objective::reward::{RewardWeights, disc_term, policy_reward};
+use crate::ppo::{PpoBatch, rollout_gae};
+use anyhow::{Result, bail};
+use ess_actor::{EvalEpisode, LocalEval, PolicyWeights};
+use ess_proto::config::LatentPrior;
+use std::sync::Arc;
+use tch::{Kind, Tensor};
+
+/// The policy's per-step rewards (Eq. 9's policy terms plus the env's) and the value
+/// estimates GAE needs.
+pub struct Rewards {
+    /// Per-step reward.
+    pub reward: Vec<f32>,
+    /// `V(s_t)`.
+    pub values: Vec<f32>,
+    /// `V(s_{t+1})`.
+    pub next_values: Vec<f32>,
+}
+
+fn scalar(t: &Tensor) -> f64 {
+    f64::try_from(t).unwrap_or(f64::NAN)
+}
+
+impl Trainer<'_> {
+    /// The current policy as the actors run it, tagged `version`.
+    pub fn weights(&self, version: u64) -> Result<PolicyWeights> {
+        let n = &self.norm;
+        let p = &self.nets.ppo;
+        Ok(export_policy(
+            &p.policy,
+            &p.prior_logits,
+            &n.mean,
+            &n.std,
+            version,
+        )?)
+    }
+
+    /// Rolls out `run.rollout_steps` transitions under the current policy (version
+    /// `it`), every chunk checked to come from it.
+    pub fn collect(&mut self, it: usize) -> Result<Rollout> {
+        let weights = Arc::new(self.weights(it as u64)?);
+        let steps = self.cfg.run.rollout_steps;
+        let chunks = self.actors.collect(weights.clone(), steps)?;
+        if let Some(c) = chunks.iter().find(|c| c.policy_version != weights.version) {
+            bail!(
+                "chunk of policy version {} in iteration {it}",
+                c.policy_version
+            );
+        }
+        Ok(Rollout::new(chunks, &self.norm, self.dims))
+    }
+
+    /// `disc.steps` steps of the D/Q side of Eq. 9 ([`disc_objective`]) on minibatches
+    /// of the rollout and the demonstrations; with `method.rim_prior_grad`, RIM's KL
+    /// term moves p(c) too (Eq. 9 minimises L_RIM over p(c)).
+    pub fn update_discriminator(&mut self, it: usize, r: &Rollout, log: &mut IterationLog) {
+        let cfg = self.cfg;
+        let m = &cfg.method;
+        let w = DiscWeights::at(m, it);
+        let prior_from_rim = m.prior == LatentPrior::Gumbel && m.rim_prior_grad;
+        let batch = cfg.disc.batch as i64;
+        let (n_gen, n_exp) = (r.len() as i64, self.expert.unlabeled.size()[0]);
+        let n_lab = self.expert.labeled.size()[0];
+        let draw = m
+            .disc_code_reweight
+            .then(|| CodeReweight::new(&r.all.code, self.dims.codes, &self.st.qc_marginal));
+        let no_rows = Tensor::zeros([0], (Kind::Int64, tch::Device::Cpu));
+        for step in 0..cfg.disc.steps {
+            let rng = &mut self.st.rng;
+            let gi = Tensor::from_slice(&match &draw {
+                Some(d) => d.sample(rng, batch),
+                None => sample_idx(rng, n_gen, batch),
+            });
+            let ei = Tensor::from_slice(&sample_idx(rng, n_exp, batch));
+            let li = if w.qc_labeled > 0.0 && n_lab > 0 {
+                Tensor::from_slice(&sample_idx(rng, n_lab, batch.min(n_lab)))
+            } else {
+                no_rows.shallow_clone()
+            };
+            let e = &self.expert;
+            let mode = if w.qc_full_labels > 0.0 {
+                e.unlabeled_mode.index_select(0, &ei)
+            } else {
+                no_rows.shallow_clone()
+            };
+            let b = DiscBatch {
+                gen_x: &r.disc_x.index_select(0, &gi),
+                gen_code: &r.code.index_select(0, &gi),
+                gen_eps: &r.eps.index_select(0, &gi),
+                expert_x: &e.unlabeled.index_select(0, &ei),
+                expert_mode: &mode,
+                labeled_x: &e.labeled.index_select(0, &li),
+                labels: &e.labels.index_select(0, &li),
+            };
+            let log_prior = self.nets.ppo.prior_logits.log_softmax(-1, Kind::Float);
+            let log_prior = if prior_from_rim {
+                log_prior
+            } else {
+                log_prior.detach()
+            };
+            let terms = disc_objective(&self.nets.disc, &b, &w, &log_prior);
+            if m.disc_code_reweight {
+                self.track_qc_marginal(&terms.expert_qc_logits);
+            }
+            let n = &mut self.nets;
+            n.dopt.zero_grad();
+            if prior_from_rim {
+                n.ppo.prior_opt.zero_grad();
+            }
+            terms.loss.backward();
+            n.dopt.step();
+            if prior_from_rim && w.rim > 0.0 {
+                n.ppo.prior_opt.step();
+            }
+            if step + 1 == cfg.disc.steps {
+                log_disc_terms(&terms, log);
+            }
+        }
+    }
+
+    /// Moves the running estimate of the demos' mode marginal toward Q_c's mean
+    /// prediction on this batch of them (`method.disc_code_reweight`).
+    fn track_qc_marginal(&mut self, expert_qc_logits: &Tensor) {
+        let p = tensor_to_vec(&tch::no_grad(|| {
+            expert_qc_logits
+                .softmax(-1, Kind::Float)
+                .mean_dim(0, false, Kind::Float)
+        }));
+        for (q, p) in self.st.qc_marginal.iter_mut().zip(&p) {
+            *q = 0.99 * *q + 0.01 * f64::from(*p);
+        }
+    }
+
+    /// The policy's reward for each transition from the updated heads (Eq. 9's policy
+    /// terms, [`RewardWeights::at`]) plus the env's, the value estimates, and (with
+    /// `method.prior_score_coef`) a score-function step of p(c). Logs the rollout.
+    pub fn policy_rewards(
+        &mut self,
+        it: usize,
+        r: &Rollout,
+        log: &mut IterationLog,
+    ) -> Result<Rewards> {
+        let cfg = self.cfg;
+        let m = &cfg.method;
+        let ppo = &mut self.nets.ppo;
+        let rw = RewardWeights::at(m, it, &ppo.prior_probs());
+        let next_n = self.norm.apply(&r.all.next_obs);
+        let eps = r.eps.view([-1, 1]);
+        let n = r.len() as i64;
+        let (reward, values, disc_r) = tch::no_grad(|| {
+            let o = self.nets.disc.forward(&r.disc_x);
+            let reward = policy_reward(rw, &o.d_logit, &o.qc_logits, &r.code, &o.qeps, &r.eps);
+            // V(s) and V(s') in one pass of the value net.
+            let vin = Tensor::cat(
+                &[
+                    Tensor::cat(&[&r.obs_n, &eps, &r.code], 1),
+                    Tensor::cat(&[&next_n, &eps, &r.code], 1),
+                ],
+                0,
+            );
+            let v = tensor_to_vec(&ppo.values(&vin));
+            (tensor_to_vec(&reward), v, disc_term(rw, &o.d_logit))
+        });
+        if m.prior == LatentPrior::Gumbel && m.prior_score_coef > 0.0 {
+            ppo.prior_score_step(&r.code, &disc_r, m.prior_score_coef);
+        }
+        let reward: Vec<f32> = reward
+            .iter()
+            .zip(&r.all.env_reward)
+            .map(|(r, e)| r + e)
+            .collect();
+        log.reward_mean =
+            reward.iter().map(|&r| r as f64).sum::<f64>() / reward.len().max(1) as f64;
+        self.runlog.chunks(it, &r.chunks, &reward)?;
+        let (values, next_values) = values.split_at(n as usize);
+        Ok(Rewards {
+            reward,
+            values: values.to_vec(),
+            next_values: next_values.to_vec(),
+        })
+    }
+
+    /// GAE, then PPO on policy and value; with the Gumbel prior, p(c) through the
+    /// recomputed codes (Sec. 3.2, [`crate::ppo`]).
+    pub fn update_policy(&mut self, r: &Rollout, rw: &Rewards, log: &mut IterationLog) {
+        let (ad, k) = (self.dims.act, self.dims.codes);
+        let (adv, ret) = rollout_gae(
+            &self.cfg.ppo,
+            &mut self.st.scaler,
+            &r.chunks,
+            &rw.reward,
+            &rw.values,
+            &rw.next_values,
+        );
+        let batch = PpoBatch {
+            obs: r.obs_n.shallow_clone(),
+            eps: r.eps.view([-1, 1]),
+            code: r.code.shallow_clone(),
+            gumbel: tensor_2d(&r.all.gumbel, k),
+            pre_tanh: tensor_2d(&r.all.pre_tanh, ad),
+            old_logp: Tensor::from_slice(&r.all.logp),
+            adv: Tensor::from_slice(&adv),
+            returns: Tensor::from_slice(&ret),
+        };
+        let ppo = &mut self.nets.ppo;
+        let st = ppo.update(&batch, &mut self.st.rng);
+        log.policy_loss = st.policy_loss;
+        log.value_loss = st.value_loss;
+        log.entropy = st.entropy;
+        log.approx_kl = st.approx_kl;
+        log.prior = prior_string(&ppo.prior_probs());
+    }
+
+    /// The paper's evaluation of the current policy (version `it`): `episodes` per code,
+    /// in the actor processes when they offer it, else in this process.
+    pub fn evaluate(
+        &mut self,
+        it: usize,
+        episodes: usize,
+        seed: u64,
+    ) -> Result<(EvalResult, Vec<EvalEpisode>)> {
+        let w = self.weights(it as u64)?;
+        let (reference, latent) = (&self.reference, &self.latent);
+        match self.actors.evaluator() {
+            Some(runner) => crate::eval::evaluate(reference, runner, &w, latent, episodes, seed),
+            None => {
+                let mut local = LocalEval(self.eval_env.as_mut());
+                crate::eval::evaluate(reference, &mut local, &w, latent, episodes, seed)
+            }
+        }
+    }
+}
+
+/// The last D/Q step's losses and accuracies into the iteration's row.
+fn log_disc_terms(t: &DiscTerms, log: &mut IterationLog) {
+    let opt = |v: &Option<Tensor>| v.as_ref().map(scalar).unwrap_or(0.0);
+    tch::no_grad(|| {
+        log.disc_bce = scalar(&t.bce);
+        log.qeps = opt(&t.qeps);
+        log.qc_generated = opt(&t.qc_generated);
+        log.qc_labeled = opt(&t.qc_labeled);
+        log.rim_entropy = opt(&t.rim_entropy);
+        log.rim_kl = opt(&t.rim_kl);
+        log.contrastive = opt(&t.contrastive);
+        let acc = |t: &Tensor| scalar(&t.to_kind(Kind::Float).mean(Kind::Float));
+        log.d_acc_expert = acc(&t.expert_logit.gt(0.0));
+        log.d_acc_policy = acc(&t.policy_logit.le(0.0));
+    });
+}

@@ -1,0 +1,79 @@
+//! The loop's own tests: the CSV rows and resume's refusals.
+
+use super::*;
+use ess_proto::config::ConfigBuilder;
+
+struct Quiet;
+impl Progress for Quiet {
+    fn iteration(&mut self, _: &IterationLog) {}
+    fn message(&mut self, _: &str) {}
+}
+
+#[test]
+fn metrics_csv_has_one_row_per_iteration_and_the_final_evaluation_in_the_last() {
+    let mut b = ConfigBuilder::new();
+    for kv in [
+        "run.iterations=3",
+        "run.transport=\"threads\"",
+        "run.actors=1",
+        "run.eval_every=2",
+        "run.rollout_steps=200",
+        "disc.steps=2",
+        "disc.batch=32",
+        "ppo.epochs=1",
+        "ppo.minibatch=100",
+        "run.eval_episodes=2",
+        "run.eval_episodes_periodic=1",
+        "run.reference_episodes=2",
+        "demos.majority_episodes=4",
+        "run.actors=1",
+        "run.torch_threads=1",
+    ] {
+        b.set(kv).expect(kv);
+    }
+    let cfg = b.build().expect("config");
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = run(&cfg, dir.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
+    let csv = std::fs::read_to_string(dir.path().join("metrics.csv")).expect("csv");
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some(CSV_HEADER));
+    let col = |name: &str| CSV_HEADER.split(',').position(|c| c == name).expect(name);
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let iterations: Vec<&str> = rows.iter().map(|r| r[0]).collect();
+    assert_eq!(iterations, ["1", "2", "3"], "{csv}");
+    // Every row holds its iteration's training numbers.
+    for r in &rows {
+        for name in ["env_steps", "rollout_s", "ppo_s"] {
+            let v: f64 = r[col(name)].parse().expect(name);
+            assert!(v > 0.0, "{name} = {v} in {r:?}");
+        }
+    }
+    // Periodic evaluation at iteration 2, the final one in iteration 3's row.
+    let nmi = |i: usize| rows[i][col("nmi")];
+    assert_eq!(nmi(0), "", "{csv}");
+    assert!(!nmi(1).is_empty(), "{csv}");
+    let final_nmi: f64 = nmi(2).parse().expect("final nmi");
+    assert!((final_nmi - out.summary.nmi).abs() < 1e-6, "{csv}");
+    let ent: f64 = rows[2][col("ent")].parse().expect("final ent");
+    assert!((ent - out.summary.ent).abs() < 1e-6, "{csv}");
+}
+
+#[test]
+fn resuming_a_directory_without_a_checkpoint_names_what_is_missing() {
+    let small = || {
+        let mut b = ConfigBuilder::new();
+        b.set("run.iterations=2").expect("set");
+        b.set("run.transport=\"threads\"").expect("set");
+        b.build().expect("config")
+    };
+    let dir = tempfile::tempdir().expect("tmp");
+    let e = resume(dir.path(), &mut Quiet, &AtomicBool::new(false))
+        .err()
+        .expect("no run there");
+    assert!(format!("{e:#}").contains("config.toml"), "{e:#}");
+    std::fs::write(dir.path().join("config.toml"), small().to_toml()).expect("w");
+    let e = resume(dir.path(), &mut Quiet, &AtomicBool::new(false))
+        .err()
+        .expect("no checkpoint");
+    assert!(format!("{e:#}").contains("no complete checkpoint"), "{e:#}");
+}
