@@ -1,28 +1,45 @@
-//! Adam whose state can be saved and restored.
+//! Adam whose state can be saved and restored, stepping all parameters at once.
 //!
 //! tch's `nn::Optimizer` keeps Adam's moments and step counts inside libtorch, out of
 //! reach of a checkpoint; a resumed run with fresh moments would not continue the run it
 //! resumes. [`Adam`] is the same update (libtorch's `torch::optim::Adam`, no weight
-//! decay, no AMSGrad) written with tch tensor ops, so its state is three plain tensors
-//! per parameter. It differs from libtorch only in float rounding: libtorch fuses
-//! `a + alpha * b`, tch offers no `alpha`, so the moment updates round once more.
+//! decay, no AMSGrad) written with tch tensor ops, so its state is plain tensors. It
+//! differs from libtorch only in float rounding: libtorch fuses `a + alpha * b`, tch
+//! offers no `alpha`, so the moment updates round once more.
 //!
-//! Gradients are reset to *undefined* as libtorch's `zero_grad` does (a parameter that
-//! no backward pass reached is skipped by `step`, its moments untouched); tch exposes
-//! that reset only through an optimiser, so a learning-rate-0 SGD over the same
-//! variables does just that and nothing else.
+//! **One buffer.** The parameters of a store are re-pointed (`set_data`) at views of
+//! one flat buffer, and the moments are flat buffers too, so a step is ~10 tensor ops
+//! whatever the number of parameters (libtorch's fused/foreach Adam is not reachable
+//! from tch). Per parameter that cost ~12 ops each, and at the learner's sizes each op
+//! is dispatch-bound (a few microseconds), so the D/Q and PPO steps spent a large share
+//! of their time in Adam (bench/learner.md). Gradient clipping takes the norm of the
+//! same flat gradient.
+//!
+//! Gradients are reset to *undefined* as libtorch's `zero_grad` does; tch exposes that
+//! reset only through an optimiser, so a learning-rate-0 SGD over the same variables
+//! does just that and nothing else. A step where no parameter has a gradient is
+//! skipped. Where only some have one, the others count as zero gradients (the moments
+//! decay; a parameter never reached keeps zero moments and does not move), and one step
+//! count serves all parameters. libtorch instead skips such parameters; the learner's
+//! losses reach the same parameters at every step of a run, so the two agree there.
 
 use std::collections::BTreeMap;
 use tch::{Kind, TchError, Tensor, nn, nn::OptimizerConfig};
 
 /// Adam over the trainable variables of one [`nn::VarStore`].
 pub struct Adam {
-    /// `(name, variable)` in the store's creation order.
+    /// `(name, variable)` in the store's creation order; each a view of `flat`.
     params: Vec<(String, Tensor)>,
-    exp_avg: Vec<Tensor>,
-    exp_avg_sq: Vec<Tensor>,
-    /// Steps taken per parameter (a parameter without a gradient is not stepped).
-    steps: Vec<i64>,
+    /// Every parameter's values, back to back.
+    flat: Tensor,
+    /// First moments, laid out as `flat`.
+    exp_avg: Tensor,
+    /// Second moments, laid out as `flat`.
+    exp_avg_sq: Tensor,
+    /// `(offset, numel)` of each parameter in the flat buffers.
+    layout: Vec<(i64, i64)>,
+    /// Steps taken.
+    steps: i64,
     lr: f64,
     beta1: f64,
     beta2: f64,
@@ -54,7 +71,7 @@ pub enum AdamStateError {
 
 impl Adam {
     /// Adam with libtorch's defaults (betas 0.9 / 0.999, eps 1e-8) over every trainable
-    /// variable of `vs` at this point.
+    /// variable of `vs` at this point, which from now on live in one flat buffer.
     pub fn new(vs: &nn::VarStore, lr: f64) -> Result<Self, TchError> {
         let named = vs.variables();
         let params: Vec<(String, Tensor)> = vs
@@ -69,11 +86,34 @@ impl Adam {
                 (name, t)
             })
             .collect();
-        let zeros = |t: &Tensor| t.zeros_like().detach();
+        let mut layout = Vec::with_capacity(params.len());
+        let mut off = 0;
+        for (_, p) in &params {
+            let n = p.numel() as i64;
+            layout.push((off, n));
+            off += n;
+        }
+        let flat = tch::no_grad(|| {
+            let parts: Vec<Tensor> = params
+                .iter()
+                .map(|(_, p)| p.detach().reshape([-1]))
+                .collect();
+            if parts.is_empty() {
+                Tensor::zeros([0], (Kind::Float, tch::Device::Cpu))
+            } else {
+                Tensor::cat(&parts, 0)
+            }
+        });
+        for ((_, p), &(o, n)) in params.iter().zip(&layout) {
+            let view = flat.narrow(0, o, n).view(p.size().as_slice());
+            p.shallow_clone().f_set_data(&view)?;
+        }
         Ok(Self {
-            exp_avg: params.iter().map(|(_, t)| zeros(t)).collect(),
-            exp_avg_sq: params.iter().map(|(_, t)| zeros(t)).collect(),
-            steps: vec![0; params.len()],
+            exp_avg: flat.zeros_like(),
+            exp_avg_sq: flat.zeros_like(),
+            flat,
+            layout,
+            steps: 0,
             params,
             lr,
             beta1: 0.9,
@@ -88,55 +128,63 @@ impl Adam {
         self.grads.zero_grad();
     }
 
-    /// Scales all gradients so that their joint L2 norm is at most `max` (as tch's
-    /// `Optimizer::clip_grad_norm`).
-    pub fn clip_grad_norm(&self, max: f64) {
-        tch::no_grad(|| {
-            let norms: Vec<Tensor> = self
-                .params
-                .iter()
-                .map(|(_, p)| p.grad())
-                .filter(|g| g.defined())
-                .map(|g| g.norm())
-                .collect();
-            if norms.is_empty() {
-                return;
-            }
-            let total = f64::try_from(Tensor::stack(&norms, 0).norm()).unwrap_or(f64::NAN);
-            let coef = max / (total + 1e-6);
-            if coef < 1.0 {
-                for (_, p) in &self.params {
-                    let mut g = p.grad();
-                    if g.defined() {
-                        let _ = g.g_mul_scalar_(coef);
-                    }
+    /// The gradients laid out as the flat buffer (zeros where undefined); `None` when
+    /// no parameter has one.
+    fn flat_grad(&self) -> Option<Tensor> {
+        let grads: Vec<Tensor> = self.params.iter().map(|(_, p)| p.grad()).collect();
+        if !grads.iter().any(Tensor::defined) {
+            return None;
+        }
+        let parts: Vec<Tensor> = grads
+            .iter()
+            .zip(&self.layout)
+            .map(|(g, &(_, n))| {
+                if g.defined() {
+                    g.reshape([-1])
+                } else {
+                    Tensor::zeros([n], (Kind::Float, tch::Device::Cpu))
                 }
-            }
-        });
+            })
+            .collect();
+        Some(Tensor::cat(&parts, 0))
     }
 
-    /// One Adam step on every parameter that has a gradient.
+    /// One Adam step on every parameter (see the module docs on missing gradients).
     pub fn step(&mut self) {
+        self.clipped_step(None);
+    }
+
+    /// Scales the gradients so that their joint L2 norm is at most `max` (as tch's
+    /// `Optimizer::clip_grad_norm`), then takes one Adam step.
+    pub fn clip_and_step(&mut self, max: f64) {
+        self.clipped_step(Some(max));
+    }
+
+    fn clipped_step(&mut self, max_norm: Option<f64>) {
         tch::no_grad(|| {
-            for (i, (_, p)) in self.params.iter_mut().enumerate() {
-                let g = p.grad();
-                if !g.defined() {
-                    continue;
+            let Some(mut g) = self.flat_grad() else {
+                return;
+            };
+            if let Some(max) = max_norm {
+                let total = f64::try_from(g.norm()).unwrap_or(f64::NAN);
+                let coef = max / (total + 1e-6);
+                if coef < 1.0 {
+                    g *= coef;
                 }
-                self.steps[i] += 1;
-                let t = self.steps[i] as i32;
-                let bc1 = 1.0 - self.beta1.powi(t);
-                let bc2 = 1.0 - self.beta2.powi(t);
-                let m = &mut self.exp_avg[i];
-                let _ = m.g_mul_scalar_(self.beta1);
-                let _ = m.g_add_(&(&g * (1.0 - self.beta1)));
-                let v = &mut self.exp_avg_sq[i];
-                let _ = v.g_mul_scalar_(self.beta2);
-                let _ = v.g_add_(&(&g * &g * (1.0 - self.beta2)));
-                let denom = (v.sqrt() / bc2.sqrt()) + self.eps;
-                let update = &self.exp_avg[i] / denom * (self.lr / bc1);
-                let _ = p.g_sub_(&update);
             }
+            self.steps += 1;
+            let t = self.steps as i32;
+            let bc1 = 1.0 - self.beta1.powi(t);
+            let bc2 = 1.0 - self.beta2.powi(t);
+            let m = &mut self.exp_avg;
+            let _ = m.g_mul_scalar_(self.beta1);
+            let _ = m.g_add_(&(&g * (1.0 - self.beta1)));
+            let v = &mut self.exp_avg_sq;
+            let _ = v.g_mul_scalar_(self.beta2);
+            let _ = v.g_add_(&(&g * &g * (1.0 - self.beta2)));
+            let denom = (v.sqrt() / bc2.sqrt()) + self.eps;
+            let update = &self.exp_avg / denom * (self.lr / bc1);
+            let _ = self.flat.g_sub_(&update);
         });
     }
 
@@ -147,26 +195,28 @@ impl Adam {
 
     /// A deep copy of the moments and step counts.
     pub fn state(&self) -> AdamState {
+        let part = |t: &Tensor, i: usize| {
+            let (o, n) = self.layout[i];
+            t.narrow(0, o, n)
+                .view(self.params[i].1.size().as_slice())
+                .copy()
+        };
         AdamState {
             params: self
                 .params
                 .iter()
                 .enumerate()
                 .map(|(i, (name, _))| {
-                    (
-                        name.clone(),
-                        (
-                            self.exp_avg[i].copy(),
-                            self.exp_avg_sq[i].copy(),
-                            self.steps[i],
-                        ),
-                    )
+                    let moments = (part(&self.exp_avg, i), part(&self.exp_avg_sq, i));
+                    (name.clone(), (moments.0, moments.1, self.steps))
                 })
                 .collect(),
         }
     }
 
-    /// Replaces the moments and step counts with `state` (every parameter, same shapes).
+    /// Replaces the moments and step count with `state` (every parameter, same
+    /// shapes). One count serves all parameters: the largest saved one (a parameter
+    /// saved with fewer steps was never reached, so its moments are zero).
     pub fn set_state(&mut self, state: &AdamState) -> Result<(), AdamStateError> {
         let mismatch = |name: &str, why: String| AdamStateError::Mismatch {
             name: name.to_string(),
@@ -177,6 +227,7 @@ impl Adam {
                 return Err(mismatch(name, "is not a parameter of this model".into()));
             }
         }
+        let mut steps = 0;
         for (i, (name, p)) in self.params.iter().enumerate() {
             let (m, v, s) = state
                 .params
@@ -198,10 +249,14 @@ impl Adam {
             if *s < 0 {
                 return Err(mismatch(name, format!("step count {s} is negative")));
             }
-            self.exp_avg[i] = m.copy();
-            self.exp_avg_sq[i] = v.copy();
-            self.steps[i] = *s;
+            let (o, n) = self.layout[i];
+            tch::no_grad(|| {
+                self.exp_avg.narrow(0, o, n).copy_(&m.reshape([-1]));
+                self.exp_avg_sq.narrow(0, o, n).copy_(&v.reshape([-1]));
+            });
+            steps = steps.max(*s);
         }
+        self.steps = steps;
         Ok(())
     }
 }
@@ -271,8 +326,7 @@ mod tests {
             for i in range {
                 opt.zero_grad();
                 m.forward(&batch(i)).square().mean(Kind::Float).backward();
-                opt.clip_grad_norm(0.5);
-                opt.step();
+                opt.clip_and_step(0.5);
             }
         };
         train(&m1, &mut opt1, 0..5);
@@ -285,6 +339,49 @@ mod tests {
         train(&m1, &mut opt1, 5..12);
         train(&m2, &mut opt2, 5..12);
         assert_eq!(weights(&vs1), weights(&vs2));
+    }
+
+    #[test]
+    fn a_parameter_no_loss_reaches_keeps_its_values_and_zero_moments() {
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let used = nn::linear(vs.root() / "used", 3, 2, Default::default());
+        let _unused = nn::linear(vs.root() / "unused", 3, 2, Default::default());
+        let before = weights(&vs);
+        let mut opt = Adam::new(&vs, 0.01).expect("adam");
+        for i in 0..5 {
+            opt.zero_grad();
+            used.forward(&batch(i))
+                .square()
+                .mean(Kind::Float)
+                .backward();
+            opt.step();
+        }
+        let after = weights(&vs);
+        for ((name, b), (_, a)) in before.iter().zip(&after) {
+            assert_eq!(name.starts_with("unused"), a == b, "{name}");
+        }
+        let st = opt.state();
+        for (name, (m, v, steps)) in &st.params {
+            assert_eq!(*steps, 5, "{name}");
+            let zero = f64::try_from(m.abs().sum(Kind::Float) + v.abs().sum(Kind::Float))
+                .expect("sum")
+                == 0.0;
+            assert_eq!(name.starts_with("unused"), zero, "{name}");
+        }
+    }
+
+    #[test]
+    fn a_state_with_uneven_step_counts_resumes_at_the_largest() {
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let _m = model(&vs);
+        let mut opt = Adam::new(&vs, 0.01).expect("adam");
+        let mut st = opt.state();
+        for (i, (_, (_, _, s))) in st.params.iter_mut().enumerate() {
+            *s = if i == 0 { 7 } else { 0 };
+        }
+        opt.set_state(&st).expect("restore");
+        assert!(opt.state().params.values().all(|(_, _, s)| *s == 7));
     }
 
     #[test]

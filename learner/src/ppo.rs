@@ -321,8 +321,7 @@ impl PpoLearner {
                     self.prior_opt.zero_grad();
                 }
                 loss.backward();
-                self.opt.clip_grad_norm(self.cfg.max_grad_norm);
-                self.opt.step();
+                self.opt.clip_and_step(self.cfg.max_grad_norm);
                 if train_prior {
                     self.prior_opt.step();
                 }
