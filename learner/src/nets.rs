@@ -73,17 +73,66 @@ impl Mlp {
     }
 }
 
-impl Module for Mlp {
-    fn forward(&self, x: &Tensor) -> Tensor {
+/// The weights that apply `(w, b)` to a layer input held in sigmoid form (`h = 2 s - 1`,
+/// `W h + b = (2 W) s + (b - W 1)`) and, when `activate`, yield twice the
+/// pre-activation (`tanh(z) = 2 sigmoid(2 z) - 1`). See [`Mlp::forward_folded`].
+fn folded(w: &Tensor, b: Option<&Tensor>, sigmoid_form: bool, activate: bool) -> (Tensor, Tensor) {
+    // New tensors throughout: `w` and `b` are the parameters themselves, which an
+    // in-place op would change.
+    let b = match b {
+        Some(b) => b.shallow_clone(),
+        None => Tensor::zeros([w.size()[0]], (w.kind(), w.device())),
+    };
+    let b = if sigmoid_form {
+        b - w.sum_dim_intlist(1, false, Kind::Float)
+    } else {
+        b
+    };
+    let scale = match (sigmoid_form, activate) {
+        (false, false) => return (w.shallow_clone(), b),
+        (true, true) => 4.0,
+        _ => 2.0,
+    };
+    let b = if activate { b * 2.0 } else { b };
+    (w * scale, b)
+}
+
+impl Mlp {
+    /// The network's output, in sigmoid form (`(s, true)`: the output is `2 s - 1`)
+    /// when the last layer is activated, so a following linear layer can fold the
+    /// `2 s - 1` into its weights ([`folded`]).
+    ///
+    /// `tanh(W h + b)` is computed as `2 sigmoid(2 (W h + b)) - 1`, with the factor 2
+    /// folded into this layer's weights and the `2 s - 1` into the next layer's, so
+    /// each hidden activation costs one sigmoid and the extra work is on the small
+    /// weight matrices. The reason is speed: libtorch's float `tanh` calls MKL's
+    /// `vsTanh`, which on AMD CPUs runs a generic code path ~6x slower than
+    /// libtorch's own vectorised sigmoid (`bench/learner.md`: 766 us against 123 us
+    /// on `[3000, 100]`). The network, its parameters and its gradients are the same
+    /// up to float rounding (a test holds it to `tanh` within 1e-6).
+    pub fn forward_folded(&self, x: &Tensor) -> (Tensor, bool) {
         let n = self.layers.len();
         let mut h = x.shallow_clone();
+        let mut sigmoid_form = false;
         for (l, lin) in self.layers.iter().enumerate() {
-            h = lin.forward(&h);
-            if l + 1 < n || self.tanh_out {
-                h = h.tanh();
+            let activate = l + 1 < n || self.tanh_out;
+            let (w, b) = folded(&lin.ws, lin.bs.as_ref(), sigmoid_form, activate);
+            h = h.linear(&w, Some(&b));
+            if activate {
+                h = h.sigmoid();
             }
+            sigmoid_form = activate;
         }
-        h
+        (h, sigmoid_form)
+    }
+}
+
+impl Module for Mlp {
+    fn forward(&self, x: &Tensor) -> Tensor {
+        match self.forward_folded(x) {
+            (s, true) => s * 2.0 - 1.0,
+            (h, false) => h,
+        }
     }
 }
 
@@ -160,8 +209,6 @@ pub struct Discriminator {
 
 /// Outputs of the discriminator on a batch.
 pub struct DiscOut {
-    /// Body features `[n, h]`.
-    pub features: Tensor,
     /// D logits `[n]`.
     pub d_logit: Tensor,
     /// Q_c logits `[n, K]`.
@@ -185,14 +232,24 @@ impl Discriminator {
         }
     }
 
-    /// All heads on inputs `[n, in]`.
+    /// All heads on inputs `[n, in]`, as one linear layer over the body's features
+    /// (the three heads' weights stacked: one matrix product instead of three).
     pub fn forward(&self, x: &Tensor) -> DiscOut {
-        let features = self.body.forward(x);
+        let (s, sigmoid_form) = self.body.forward_folded(x);
+        let heads = [&self.d, &self.qc, &self.qeps];
+        let w = Tensor::cat(&heads.map(|h| &h.ws), 0);
+        let b = heads.map(|h| h.bs.as_ref());
+        let b = match b {
+            [Some(d), Some(qc), Some(qeps)] => Some(Tensor::cat(&[d, qc, qeps], 0)),
+            _ => None,
+        };
+        let (w, b) = folded(&w, b.as_ref(), sigmoid_form, false);
+        let out = s.linear(&w, Some(&b));
+        let k = self.qc.ws.size()[0];
         DiscOut {
-            d_logit: self.d.forward(&features).squeeze_dim(-1),
-            qc_logits: self.qc.forward(&features),
-            qeps: self.qeps.forward(&features).squeeze_dim(-1),
-            features,
+            d_logit: out.select(1, 0),
+            qc_logits: out.narrow(1, 1, k),
+            qeps: out.select(1, 1 + k),
         }
     }
 
@@ -236,6 +293,74 @@ mod tests {
         assert_eq!(obs_columns(2, 45), Some(2));
         assert_eq!(obs_columns(45, 45), Some(45));
         assert_eq!(obs_columns(46, 45), None);
+    }
+
+    /// The plain `tanh(W h + b)` chain [`Mlp::forward`] reformulates.
+    fn tanh_chain(m: &Mlp, x: &Tensor) -> Tensor {
+        let n = m.layers.len();
+        let mut h = x.shallow_clone();
+        for (l, lin) in m.layers.iter().enumerate() {
+            h = lin.forward(&h);
+            if l + 1 < n || m.tanh_out {
+                h = h.tanh();
+            }
+        }
+        h
+    }
+
+    #[test]
+    fn the_sigmoid_form_equals_tanh_layers_in_values_and_gradients() {
+        tch::manual_seed(5);
+        for tanh_out in [false, true] {
+            let vs = nn::VarStore::new(tch::Device::Cpu);
+            let m = Mlp::new(vs.root() / "m", &[7, 16, 16, 3], tanh_out, 1.0);
+            // Pre-activations from about -6 to 6, where tanh saturates.
+            let x = Tensor::randn([64, 7], (Kind::Float, tch::Device::Cpu)) * 3.0;
+            let grads = |out: Tensor| {
+                vs.trainable_variables()
+                    .iter_mut()
+                    .for_each(|v| v.zero_grad());
+                (&out * &out).sum(Kind::Float).backward();
+                let g: Vec<Vec<f32>> = vs
+                    .trainable_variables()
+                    .iter()
+                    .map(|v| tensor_to_vec(&v.grad()))
+                    .collect();
+                (tensor_to_vec(&out), g)
+            };
+            let (fast, gf) = grads(m.forward(&x));
+            let (plain, gp) = grads(tanh_chain(&m, &x));
+            let max_diff = |a: &[f32], b: &[f32]| {
+                a.iter()
+                    .zip(b)
+                    .map(|(a, b)| (a - b).abs() / b.abs().max(1.0))
+                    .fold(0.0f32, f32::max)
+            };
+            assert!(
+                max_diff(&fast, &plain) < 1e-6,
+                "values, tanh_out {tanh_out}"
+            );
+            for (a, b) in gf.iter().zip(&gp) {
+                assert!(max_diff(a, b) < 1e-5, "gradients, tanh_out {tanh_out}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_stacked_heads_equal_each_head_on_the_tanh_features() {
+        tch::manual_seed(6);
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let d = Discriminator::new(vs.root() / "d", 5, &[12, 12], 4);
+        let x = Tensor::randn([9, 5], (Kind::Float, tch::Device::Cpu)) * 2.0;
+        let o = d.forward(&x);
+        let f = tanh_chain(&d.body, &x);
+        let close = |a: &Tensor, b: &Tensor| {
+            let diff = f64::try_from((a - b).abs().max()).expect("max");
+            assert!(diff < 1e-5, "{diff}");
+        };
+        close(&o.d_logit, &d.d.forward(&f).squeeze_dim(-1));
+        close(&o.qc_logits, &d.qc.forward(&f));
+        close(&o.qeps, &d.qeps.forward(&f).squeeze_dim(-1));
     }
 
     #[test]
