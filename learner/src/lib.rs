@@ -16,6 +16,7 @@
 //!   [`replay`]: `ess replay`, re-simulating its evaluation episodes.
 //! - [`progress`]: `ess train --progress jsonl`, the machine-readable progress stream.
 //! - [`jobs`], [`serve`], [`client`]: the control plane (`ess serve`, `ess job ...`).
+//! - [`malloc`]: glibc allocator settings that spare the learner's steps page faults.
 
 pub mod actors;
 pub mod checkpoint;
@@ -24,6 +25,7 @@ pub mod client;
 pub mod eval;
 pub mod experts;
 pub mod jobs;
+pub mod malloc;
 pub mod metrics;
 pub mod nets;
 pub mod objective;

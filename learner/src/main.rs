@@ -1159,6 +1159,7 @@ fn job_spec(c: &ConfigArgs) -> Result<ess_proto::pb::JobSpec> {
 }
 
 fn main() {
+    ess_learner::malloc::keep_freed_memory();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_env_filter(
