@@ -2,7 +2,7 @@
 //! Reacher sizes (obs 8, act 2, K = 6; D 100-100 on 1000 generated + 1000 expert +
 //! 1000 labeled rows; policy and value 64-64 on minibatches of 1000), on the
 //! learner's own code (`disc_objective`, `Adam`, `PpoLearner`).
-//! `cargo run --release -p ess-learner --example update_profile [threads]`.
+//! `cargo run --release -p ess-learner --example update_profile [threads [disc|ppo]]`.
 
 use ess_learner::nets::Discriminator;
 use ess_learner::objective::combined::{DiscBatch, DiscWeights, disc_objective};
@@ -186,6 +186,12 @@ fn main() {
     tch::set_num_threads(threads);
     tch::manual_seed(0);
     println!("libtorch threads: {threads}");
-    disc_step(100);
-    ppo_update(10);
+    // A second argument picks one phase: `disc` or `ppo` (for a profiler).
+    let only = std::env::args().nth(2).unwrap_or_default();
+    if only != "ppo" {
+        disc_step(100);
+    }
+    if only != "disc" {
+        ppo_update(if only == "ppo" { 40 } else { 10 });
+    }
 }

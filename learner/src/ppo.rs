@@ -283,36 +283,29 @@ impl PpoLearner {
             let s = b.adv.std(true).clamp_min(1e-8);
             (&b.adv - m) / s
         };
+        // Every per-row input in one matrix, so a minibatch is one gather; the
+        // columns are views of it.
+        let rows = PpoRows::new(b, &adv);
         let mut idx: Vec<i64> = (0..n as i64).collect();
         let mb = self.cfg.minibatch.min(n).max(1);
-        let mut stats = PpoStats::default();
-        let mut count = 0.0;
+        let mut sums = Vec::new();
         let train_prior = self.prior == LatentPrior::Gumbel && self.cfg.prior_lr > 0.0;
         for _ in 0..self.cfg.epochs {
             idx.shuffle(rng);
             for chunk in idx.chunks(mb) {
-                let i = Tensor::from_slice(chunk);
-                let obs = b.obs.index_select(0, &i);
-                let eps = b.eps.index_select(0, &i);
-                let code =
-                    self.code_for(&b.code.index_select(0, &i), &b.gumbel.index_select(0, &i));
-                let input = Tensor::cat(&[&obs, &eps, &code], 1);
-                let vin = Tensor::cat(&[&obs, &eps, &code.detach()], 1);
-                let logp = self
-                    .policy
-                    .log_prob(&input, &b.pre_tanh.index_select(0, &i));
-                let old = b.old_logp.index_select(0, &i);
-                let a = adv.index_select(0, &i);
-                let log_ratio = &logp - &old;
+                let r = rows.gather(&Tensor::from_slice(chunk));
+                let code = self.code_for(&r.code, &r.gumbel);
+                let input = Tensor::cat(&[&r.obs_eps, &code], 1);
+                let logp = self.policy.log_prob(&input, &r.pre_tanh);
+                let log_ratio = &logp - &r.old_logp;
                 let ratio = log_ratio.exp();
                 let clip = self.cfg.clip;
-                let s1 = &ratio * &a;
-                let s2 = ratio.clamp(1.0 - clip, 1.0 + clip) * &a;
+                let s1 = &ratio * &r.adv;
+                let s2 = ratio.clamp(1.0 - clip, 1.0 + clip) * &r.adv;
                 let policy_loss = -s1.minimum(&s2).mean(Kind::Float);
-                let v = self.values(&vin);
-                let value_loss = (v - b.returns.index_select(0, &i))
-                    .square()
-                    .mean(Kind::Float);
+                // The value net sees the codes without their path to p(c).
+                let v = self.values(&input.detach());
+                let value_loss = (v - &r.returns).square().mean(Kind::Float);
                 let entropy = self.policy.entropy();
                 let loss = &policy_loss + &value_loss * self.cfg.value_coef
                     - &entropy * self.cfg.entropy_coef;
@@ -325,30 +318,36 @@ impl PpoLearner {
                 if train_prior {
                     self.prior_opt.step();
                 }
-                tch::no_grad(|| {
-                    stats.policy_loss += f64::try_from(&policy_loss).unwrap_or(f64::NAN);
-                    stats.value_loss += f64::try_from(&value_loss).unwrap_or(f64::NAN);
-                    stats.entropy += f64::try_from(&entropy).unwrap_or(f64::NAN);
-                    let kl = ((log_ratio.exp() - 1.0) - &log_ratio).mean(Kind::Float);
-                    stats.approx_kl += f64::try_from(&kl).unwrap_or(f64::NAN);
-                    let cf = (ratio - 1.0)
-                        .abs()
-                        .gt(clip)
-                        .to_kind(Kind::Float)
-                        .mean(Kind::Float);
-                    stats.clip_frac += f64::try_from(&cf).unwrap_or(f64::NAN);
-                });
-                count += 1.0;
+                sums.push(tch::no_grad(|| {
+                    let kl = ((&ratio - 1.0) - &log_ratio).mean(Kind::Float);
+                    let clipped = (ratio - 1.0).abs().gt(clip).to_kind(Kind::Float);
+                    Tensor::stack(
+                        &[
+                            policy_loss,
+                            value_loss,
+                            entropy,
+                            kl,
+                            clipped.mean(Kind::Float),
+                        ],
+                        0,
+                    )
+                }));
             }
         }
-        if count > 0.0 {
-            stats.policy_loss /= count;
-            stats.value_loss /= count;
-            stats.entropy /= count;
-            stats.approx_kl /= count;
-            stats.clip_frac /= count;
+        if sums.is_empty() {
+            return PpoStats::default();
         }
-        stats
+        // One read of the statistics for the whole update.
+        let mean =
+            crate::nets::tensor_to_vec(&Tensor::stack(&sums, 0).mean_dim(0, false, Kind::Float));
+        let at = |i: usize| mean.get(i).copied().map_or(f64::NAN, f64::from);
+        PpoStats {
+            policy_loss: at(0),
+            value_loss: at(1),
+            entropy: at(2),
+            approx_kl: at(3),
+            clip_frac: at(4),
+        }
     }
 
     /// One score-function step on the p(c) logits: the code of each step
@@ -374,6 +373,66 @@ impl PpoLearner {
     /// p(c) as probabilities.
     pub fn prior_probs(&self) -> Vec<f32> {
         tch::no_grad(|| crate::nets::tensor_to_vec(&self.prior_logits.softmax(-1, Kind::Float)))
+    }
+}
+
+/// A [`PpoBatch`] as one `[n, cols]` matrix (advantages normalised), gathered per
+/// minibatch into [`MinibatchRows`].
+struct PpoRows {
+    all: Tensor,
+    /// Widths of obs + eps, code, gumbel, pre_tanh.
+    widths: [i64; 4],
+}
+
+/// One minibatch's columns (views of one gathered matrix).
+struct MinibatchRows {
+    obs_eps: Tensor,
+    code: Tensor,
+    gumbel: Tensor,
+    pre_tanh: Tensor,
+    old_logp: Tensor,
+    adv: Tensor,
+    returns: Tensor,
+}
+
+impl PpoRows {
+    fn new(b: &PpoBatch, adv: &Tensor) -> Self {
+        let col = |t: &Tensor| t.view([-1, 1]);
+        let parts = [
+            b.obs.shallow_clone(),
+            b.eps.shallow_clone(),
+            b.code.shallow_clone(),
+            b.gumbel.shallow_clone(),
+            b.pre_tanh.shallow_clone(),
+            col(&b.old_logp),
+            col(adv),
+            col(&b.returns),
+        ];
+        let w = |t: &Tensor| t.size()[1];
+        Self {
+            widths: [
+                w(&b.obs) + w(&b.eps),
+                w(&b.code),
+                w(&b.gumbel),
+                w(&b.pre_tanh),
+            ],
+            all: Tensor::cat(&parts, 1),
+        }
+    }
+
+    fn gather(&self, idx: &Tensor) -> MinibatchRows {
+        let m = self.all.index_select(0, idx);
+        let [oe, c, g, p] = self.widths;
+        let tail = oe + c + g + p;
+        MinibatchRows {
+            obs_eps: m.narrow(1, 0, oe),
+            code: m.narrow(1, oe, c),
+            gumbel: m.narrow(1, oe + c, g),
+            pre_tanh: m.narrow(1, oe + c + g, p),
+            old_logp: m.select(1, tail),
+            adv: m.select(1, tail + 1),
+            returns: m.select(1, tail + 2),
+        }
     }
 }
 
