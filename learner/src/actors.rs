@@ -522,9 +522,11 @@ impl RolloutSource for ShmActors {
         steps: usize,
     ) -> Result<Vec<Chunk>, ActorError> {
         let n = self.procs.len();
-        if weights.version <= self.weights_version && self.weights_version > 0 {
+        // A version may repeat (the overlap pipeline collects iterations 1 and 2 under
+        // the initial weights) but never go back.
+        if weights.version < self.weights_version {
             return Err(transport(format!(
-                "weights version {} does not increase (last {})",
+                "weights version {} is older than the last one ({})",
                 weights.version, self.weights_version
             )));
         }
