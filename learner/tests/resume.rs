@@ -1,4 +1,5 @@
-//! `ess train` stopped and resumed from its checkpoint continues bit-identically.
+//! `ess train` stopped and resumed from its checkpoint continues bit-identically, in
+//! both pipelines; overlapped runs are deterministic.
 //!
 //! Its own test binary, its tests one at a time ([`ONE_AT_A_TIME`]): libtorch's random
 //! stream is process-global, and a run beside another in one process would draw from
@@ -97,13 +98,11 @@ fn checkpoint_bytes(dir: &Path, it: usize) -> Vec<(String, Vec<u8>)> {
         .collect()
 }
 
-#[test]
-fn a_run_stopped_and_resumed_ends_bit_identical_to_an_uninterrupted_one() {
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    // The contrastive term draws libtorch noise, so that stream is covered too.
-    let cfg = small_config(&["method.w_contrastive=0.1"]);
+/// Runs `cfg` whole, and stopped after iteration 2 then resumed: both end with the
+/// same metrics, checkpoint bytes, NMI and p(c).
+fn assert_resume_is_bit_identical(cfg: &CheckedConfig) {
     let whole = tempfile::tempdir().expect("tmp");
-    let a = run(&cfg, whole.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
+    let a = run(cfg, whole.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
     assert!(!a.summary.interrupted);
 
     let parts = tempfile::tempdir().expect("tmp");
@@ -112,7 +111,7 @@ fn a_run_stopped_and_resumed_ends_bit_identical_to_an_uninterrupted_one() {
         at: 2,
         stop: stop.clone(),
     };
-    let b1 = run(&cfg, parts.path(), &mut p, &stop).expect("first part");
+    let b1 = run(cfg, parts.path(), &mut p, &stop).expect("first part");
     assert!(b1.summary.interrupted);
     assert_eq!(b1.summary.iterations, 2);
     let b2 = resume(parts.path(), &mut Quiet, &AtomicBool::new(false)).expect("resume");
@@ -132,6 +131,56 @@ fn a_run_stopped_and_resumed_ends_bit_identical_to_an_uninterrupted_one() {
     }
     assert_eq!(a.summary.nmi.to_bits(), b2.summary.nmi.to_bits());
     assert_eq!(a.summary.prior, b2.summary.prior);
+}
+
+#[test]
+fn a_run_stopped_and_resumed_ends_bit_identical_to_an_uninterrupted_one() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    // The contrastive term draws libtorch noise, so that stream is covered too.
+    assert_resume_is_bit_identical(&small_config(&["method.w_contrastive=0.1"]));
+}
+
+#[test]
+fn an_overlapped_run_stopped_and_resumed_ends_bit_identical_to_an_uninterrupted_one() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    // The stop lands between collecting iteration 3's rollout and using it: the
+    // checkpoint must bring back the actors from before it and its weights.
+    assert_resume_is_bit_identical(&small_config(&[
+        "method.w_contrastive=0.1",
+        "run.pipeline=\"overlap\"",
+    ]));
+}
+
+#[test]
+fn overlapped_runs_repeat_exactly_and_differ_from_synchronous_ones() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let overlap = small_config(&["run.pipeline=\"overlap\""]);
+    let dirs: Vec<_> = (0..2).map(|_| tempfile::tempdir().expect("tmp")).collect();
+    for d in &dirs {
+        run(&overlap, d.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
+    }
+    let (a, b) = (
+        metrics_without_times(dirs[0].path()),
+        metrics_without_times(dirs[1].path()),
+    );
+    assert_eq!(a, b, "two overlapped runs of one seed");
+    let sync = tempfile::tempdir().expect("tmp");
+    run(
+        &small_config(&[]),
+        sync.path(),
+        &mut Quiet,
+        &AtomicBool::new(false),
+    )
+    .expect("train");
+    let s = metrics_without_times(sync.path());
+    // Iteration 1 is the same (its rollout is collected first in both); from
+    // iteration 2 on the overlapped run learns from rollouts one version older.
+    assert_eq!(a[1], s[1], "iteration 1");
+    assert_ne!(
+        a[2..],
+        s[2..],
+        "the overlapped run used the synchronous rollouts"
+    );
 }
 
 #[test]

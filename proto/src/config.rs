@@ -91,6 +91,20 @@ pub enum ActorTransport {
     Processes,
 }
 
+/// How an iteration's rollout and the learner's update interleave.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Pipeline {
+    /// Collect, then update (Algorithm 1 as written).
+    #[default]
+    Sync,
+    /// The actors collect iteration k+1 under the weights of version k while the
+    /// learner updates on iteration k's rollout; PPO's ratio uses the behaviour
+    /// log-probabilities the actors recorded (one version stale, as in APPO and
+    /// Cleanba). Deterministic: the rollouts depend on the weights, not the timing.
+    Overlap,
+}
+
 /// Form of the discriminator's term in the policy reward.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -446,6 +460,9 @@ pub struct RunConfig {
     /// memory) or `threads` of the learner (the single-process path; `ess train
     /// --actors 0`).
     pub transport: ActorTransport,
+    /// `sync` (default): collect, then update; `overlap`: collect the next
+    /// iteration's rollout while the learner updates ([`Pipeline`]).
+    pub pipeline: Pipeline,
     /// Seconds without a heartbeat after which an actor process counts as hung and is
     /// restarted (actors beat every 0.2 s, also while collecting).
     pub actor_timeout_s: f64,
@@ -482,6 +499,7 @@ impl Default for RunConfig {
             rollout_steps: 5000,
             actors: default_actors(),
             transport: ActorTransport::Processes,
+            pipeline: Pipeline::Sync,
             actor_timeout_s: 3.0,
             torch_threads: 0,
             eval_every: 25,

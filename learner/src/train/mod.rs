@@ -29,13 +29,15 @@ pub use stages::Rewards;
 
 use crate::eval::Reference;
 use crate::runlog::RunLog;
-use anyhow::{Context, Result};
-use ess_actor::{LatentSpec, RolloutSource};
+use anyhow::{Context, Result, anyhow};
+use ess_actor::{LatentSpec, PolicyWeights, RolloutSource};
 use ess_envs::{Demos, EnvSpec, ScriptedExpert};
 use ess_proto::CheckedConfig;
+use ess_proto::config::Pipeline;
 use rand_chacha::ChaCha8Rng;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -78,6 +80,16 @@ pub struct LoopState {
     pub last_saved: Option<usize>,
 }
 
+/// With `run.pipeline = "overlap"`: the next iteration's rollout, collected while this
+/// iteration updated, and what a checkpoint needs to collect it again.
+pub struct Prefetch {
+    rollout: Rollout,
+    /// The actors' states before it was collected.
+    before: Vec<crate::checkpoint::SavedWorker>,
+    /// The weights it was collected under.
+    weights: Arc<PolicyWeights>,
+}
+
 /// One run's state; each method is one stage of Algorithm 1 (see the module docs).
 pub struct Trainer<'c> {
     cfg: &'c CheckedConfig,
@@ -90,7 +102,12 @@ pub struct Trainer<'c> {
     reference: Reference,
     latent: LatentSpec,
     nets: Nets,
-    actors: Box<dyn RolloutSource>,
+    /// `None` only while a rollout is collected beside an update (`run.pipeline`).
+    actors: Option<Box<dyn RolloutSource>>,
+    /// The overlap pipeline's rollout for the next iteration.
+    prefetch: Option<Prefetch>,
+    /// The weights the first collection of a resumed overlapped run runs under.
+    resume_weights: Option<Arc<PolicyWeights>>,
     eval_env: Box<dyn ScriptedExpert>,
     st: LoopState,
     /// Finished on every way out (drop), see [`crate::runlog`].
@@ -180,7 +197,9 @@ impl Trainer<'_> {
         Ok(false)
     }
 
-    /// One iteration of Algorithm 1: collect, D/Q updates, rewards, PPO and p(c).
+    /// One iteration of Algorithm 1: collect, D/Q updates, rewards, PPO and p(c). In
+    /// the overlap pipeline the rollout was collected during the previous iteration,
+    /// and the next one is collected during this one's update.
     pub fn iteration(&mut self, it: usize) -> Result<IterationLog> {
         tch::manual_seed(torch_seed(self.cfg.run.seed, it));
         let mut log = IterationLog {
@@ -188,21 +207,63 @@ impl Trainer<'_> {
             ..Default::default()
         };
         let t0 = Instant::now();
-        let rollout = self.collect(it)?;
+        let rollout = match self.prefetch.take() {
+            Some(p) => p.rollout,
+            None => self.collect(it)?,
+        };
         log.rollout_s = t0.elapsed().as_secs_f64();
-        let t1 = Instant::now();
-        self.update_discriminator(it, &rollout, &mut log);
-        log.disc_s = t1.elapsed().as_secs_f64();
-        let t2 = Instant::now();
-        let rewards = self.policy_rewards(it, &rollout, &mut log)?;
-        self.update_policy(&rollout, &rewards, &mut log);
-        log.ppo_s = t2.elapsed().as_secs_f64();
+        let run = &self.cfg.run;
+        if run.pipeline == Pipeline::Overlap && it < run.iterations {
+            self.update_while_collecting(it, &rollout, &mut log)?;
+        } else {
+            self.update(it, &rollout, &mut log)?;
+        }
         self.st.phases.add(&log);
         self.st.env_steps += rollout.len();
         self.st.iters_done = it;
         log.env_steps = self.st.env_steps;
         log.wall_s = self.wall_s();
         Ok(log)
+    }
+
+    /// [`Trainer::update`] on `rollout` while the actors, on a thread of their own,
+    /// collect the next iteration's rollout under the current weights (version `it`).
+    fn update_while_collecting(
+        &mut self,
+        it: usize,
+        rollout: &Rollout,
+        log: &mut IterationLog,
+    ) -> Result<()> {
+        let weights = Arc::new(self.weights(it as u64)?);
+        let mut actors = self.actors.take().context("the actors are collecting")?;
+        let before = setup::actor_states(actors.as_mut());
+        let steps = self.cfg.run.rollout_steps;
+        let (updated, joined) = std::thread::scope(|s| {
+            let w = weights.clone();
+            let collector = s.spawn(move || {
+                let chunks = stages::gather(actors.as_mut(), w, steps);
+                (actors, chunks)
+            });
+            let updated = self.update(it, rollout, log);
+            (updated, collector.join())
+        });
+        let (actors, chunks) = joined.map_err(|_| anyhow!("the rollout thread panicked"))?;
+        self.actors = Some(actors);
+        updated?;
+        self.prefetch = Some(Prefetch {
+            rollout: Rollout::new(chunks?, &self.norm, self.dims),
+            before,
+            weights,
+        });
+        Ok(())
+    }
+
+    /// The actors (not while they collect beside an update).
+    fn actors(&mut self) -> Result<&mut dyn RolloutSource> {
+        match self.actors.as_deref_mut() {
+            Some(a) => Ok(a),
+            None => Err(anyhow!("the actors are collecting")),
+        }
     }
 
     /// Training seconds so far, those of earlier processes of a resumed run included.
@@ -238,8 +299,18 @@ impl Trainer<'_> {
             qc_marginal: self.st.qc_marginal.clone(),
             scaler: self.st.scaler.clone(),
             adam_steps: Default::default(),
-            actors: setup::actor_states(self.actors.as_mut()),
+            actors: Vec::new(),
+            behaviour: None,
         };
+        // With a prefetched rollout the actors are saved as they were before it, with
+        // its weights, so a resume collects it again.
+        match &self.prefetch {
+            Some(p) => {
+                state.actors = p.before.clone();
+                state.behaviour = Some(p.weights.as_ref().into());
+            }
+            None => state.actors = setup::actor_states(self.actors()?),
+        }
         let n = &self.nets;
         crate::checkpoint::save(
             &self.out.join("checkpoints"),

@@ -9,7 +9,7 @@ use crate::nets::{Discriminator, obs_columns};
 use crate::optim::Adam;
 use crate::ppo::PpoLearner;
 use anyhow::{Context, Result, bail};
-use ess_actor::{LatentSpec, RolloutSource, ThreadedActors, Worker};
+use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::make_env;
 use ess_proto::CheckedConfig;
 use ess_proto::config::ActorTransport;
@@ -17,6 +17,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::io::BufWriter;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tch::nn;
 
@@ -188,7 +189,7 @@ impl LoopState {
         actors: &mut dyn RolloutSource,
         k: usize,
         progress: &mut dyn Progress,
-    ) -> Result<Self> {
+    ) -> Result<(Self, Option<Arc<PolicyWeights>>)> {
         let dir = crate::checkpoint::latest(ckpt_dir)?.with_context(|| {
             format!(
                 "no complete checkpoint under {} to resume from",
@@ -224,7 +225,13 @@ impl LoopState {
                 .restore(&states)
                 .with_context(|| format!("{}: restoring the actors", dir.display()))?;
         }
-        Ok(Self {
+        let behaviour = match &st.behaviour {
+            Some(w) => Some(Arc::new(w.to_weights().with_context(|| {
+                format!("{}: the overlapped rollout's weights", dir.display())
+            })?)),
+            None => None,
+        };
+        let state = Self {
             env_steps: st.env_steps,
             iters_done: st.iteration,
             phases: st.phases,
@@ -235,7 +242,8 @@ impl LoopState {
             scaler: st.scaler,
             wall_before: st.wall_s,
             last_saved: Some(st.iteration),
-        })
+        };
+        Ok((state, behaviour))
     }
 }
 
@@ -326,11 +334,11 @@ impl<'c> Trainer<'c> {
         };
         let mut nets = Nets::new(cfg, dims)?;
         let mut actors = rollout_source(cfg, latent, dims.codes)?;
-        let st = if resuming {
+        let (st, resume_weights) = if resuming {
             let ckpt = out.join("checkpoints");
             LoopState::restore(&ckpt, &mut nets, actors.as_mut(), dims.codes, progress)?
         } else {
-            LoopState::fresh(cfg)
+            (LoopState::fresh(cfg), None)
         };
         let (runlog, csv) = open_logs(cfg, out, &st, resuming)?;
         Ok(Self {
@@ -344,7 +352,9 @@ impl<'c> Trainer<'c> {
             reference,
             latent,
             nets,
-            actors,
+            actors: Some(actors),
+            prefetch: None,
+            resume_weights,
             eval_env,
             st,
             runlog,

@@ -8,10 +8,12 @@ use crate::nets::{export_policy, tensor_2d, tensor_to_vec};
 use crate::objective::combined::{DiscBatch, DiscTerms, DiscWeights, disc_objective};
 use crate::objective::reward::{RewardWeights, disc_term, policy_reward};
 use crate::ppo::{PpoBatch, rollout_gae};
-use anyhow::{Result, bail};
-use ess_actor::{EvalEpisode, LocalEval, PolicyWeights};
+use anyhow::{Context, Result, bail};
+use ess_actor::{EvalEpisode, LocalEval, PolicyWeights, RolloutSource};
+use ess_proto::Chunk;
 use ess_proto::config::LatentPrior;
 use std::sync::Arc;
+use std::time::Instant;
 use tch::{Kind, Tensor};
 
 /// The policy's per-step rewards (Eq. 9's policy terms plus the env's) and the value
@@ -44,18 +46,28 @@ impl Trainer<'_> {
     }
 
     /// Rolls out `run.rollout_steps` transitions under the current policy (version
-    /// `it`), every chunk checked to come from it.
+    /// `it`), or on the first iteration of a resumed overlapped run under the weights
+    /// the checkpoint recorded for it.
     pub fn collect(&mut self, it: usize) -> Result<Rollout> {
-        let weights = Arc::new(self.weights(it as u64)?);
+        let weights = match self.resume_weights.take() {
+            Some(w) => w,
+            None => Arc::new(self.weights(it as u64)?),
+        };
         let steps = self.cfg.run.rollout_steps;
-        let chunks = self.actors.collect(weights.clone(), steps)?;
-        if let Some(c) = chunks.iter().find(|c| c.policy_version != weights.version) {
-            bail!(
-                "chunk of policy version {} in iteration {it}",
-                c.policy_version
-            );
-        }
+        let chunks = gather(self.actors()?, weights, steps)?;
         Ok(Rollout::new(chunks, &self.norm, self.dims))
+    }
+
+    /// The D/Q, reward and PPO stages on `rollout`, timed into `log`.
+    pub fn update(&mut self, it: usize, rollout: &Rollout, log: &mut IterationLog) -> Result<()> {
+        let t1 = Instant::now();
+        self.update_discriminator(it, rollout, log);
+        log.disc_s = t1.elapsed().as_secs_f64();
+        let t2 = Instant::now();
+        let rewards = self.policy_rewards(it, rollout, log)?;
+        self.update_policy(rollout, &rewards, log);
+        log.ppo_s = t2.elapsed().as_secs_f64();
+        Ok(())
     }
 
     /// `disc.steps` steps of the D/Q side of Eq. 9 ([`disc_objective`]) on minibatches
@@ -229,7 +241,11 @@ impl Trainer<'_> {
     ) -> Result<(EvalResult, Vec<EvalEpisode>)> {
         let w = self.weights(it as u64)?;
         let (reference, latent) = (&self.reference, &self.latent);
-        match self.actors.evaluator() {
+        let actors = self
+            .actors
+            .as_deref_mut()
+            .context("the actors are collecting")?;
+        match actors.evaluator() {
             Some(runner) => crate::eval::evaluate(reference, runner, &w, latent, episodes, seed),
             None => {
                 let mut local = LocalEval(self.eval_env.as_mut());
@@ -237,6 +253,24 @@ impl Trainer<'_> {
             }
         }
     }
+}
+
+/// `steps` transitions from `actors` under `weights`, every chunk checked to come
+/// from them.
+pub fn gather(
+    actors: &mut dyn RolloutSource,
+    weights: Arc<PolicyWeights>,
+    steps: usize,
+) -> Result<Vec<Chunk>> {
+    let version = weights.version;
+    let chunks = actors.collect(weights, steps)?;
+    if let Some(c) = chunks.iter().find(|c| c.policy_version != version) {
+        bail!(
+            "chunk of policy version {} where version {version} was asked for",
+            c.policy_version
+        );
+    }
+    Ok(chunks)
 }
 
 /// The last D/Q step's losses and accuracies into the iteration's row.
