@@ -1,0 +1,131 @@
+//! `ess replay`: a run log's evaluation episodes, listed or re-simulated.
+
+use super::input_err;
+use anyhow::Result;
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct ReplayArgs {
+    /// The run log (`run.mcap` in a training run's output directory).
+    file: PathBuf,
+    /// Re-simulate this episode (an index from the listing).
+    #[arg(long)]
+    episode: Option<u32>,
+    /// Largest tolerated absolute deviation of state, observation and mode rewards.
+    #[arg(long, default_value_t = 1e-6)]
+    tol: f64,
+    /// Draw the replayed episode into this PNG (MuJoCo envs also write
+    /// `<name>-path.png`); needs --episode.
+    #[arg(long, value_name = "PNG")]
+    plot: Option<PathBuf>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn replay(a: ReplayArgs) -> Result<()> {
+    use ess_learner::replay::{ReplayError, list, load, plot, replay};
+    let input = |e: ReplayError| match e {
+        ReplayError::Plot(_) => anyhow::Error::new(e),
+        e => input_err(e),
+    };
+    if a.tol.is_nan() || a.tol < 0.0 {
+        return Err(input_err(format!("--tol {} must be >= 0", a.tol)));
+    }
+    let rec = load(&a.file).map_err(input)?;
+    if let Some(why) = &rec.truncated {
+        eprintln!(
+            "ess: {} is truncated or damaged ({why}); using its complete messages",
+            a.file.display()
+        );
+    }
+    let Some(episode) = a.episode else {
+        if a.plot.is_some() {
+            return Err(input_err("--plot needs --episode N"));
+        }
+        let rows = list(&rec);
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&rows)?);
+        } else {
+            println!(
+                "{}: {} on {} (seed {}), {} evaluation episodes",
+                a.file.display(),
+                rec.config.method,
+                rec.config.env,
+                rec.config.seed,
+                rows.len()
+            );
+            println!("episode  iteration  final  code     eps  length  return per mode");
+            for r in &rows {
+                let len = if r.recorded_steps == r.length as usize {
+                    r.length.to_string()
+                } else {
+                    format!("{}/{}", r.recorded_steps, r.length)
+                };
+                println!(
+                    "{:>7}  {:>9}  {:>5}  {:>4}  {:>+6.3}  {:>6}  {}",
+                    r.episode,
+                    r.iteration,
+                    if r.final_eval { "yes" } else { "no" },
+                    r.code,
+                    r.eps,
+                    len,
+                    r.mode_returns
+                        .iter()
+                        .map(|v| format!("{v:.3}"))
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                );
+            }
+        }
+        return Ok(());
+    };
+    let (report, traj) = replay(&rec, episode).map_err(input)?;
+    let plots = match &a.plot {
+        Some(out) => {
+            plot(out, &traj, &format!("{} episode {episode}", rec.config.env)).map_err(input)?
+        }
+        None => Vec::new(),
+    };
+    let ok = report.max_deviation() <= a.tol;
+    if a.json {
+        let mut v = serde_json::to_value(&report)?;
+        v["tol"] = serde_json::json!(a.tol);
+        v["within_tol"] = serde_json::json!(ok);
+        v["plots"] = serde_json::json!(plots);
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "episode {episode} of {} ({}): {} steps re-simulated",
+            a.file.display(),
+            report.env,
+            report.steps
+        );
+        println!(
+            "max |state - recorded|     {:.3e} (step {})",
+            report.max_state_deviation, report.max_state_deviation_step
+        );
+        println!(
+            "max |obs - recorded|       {:.3e}",
+            report.max_obs_deviation
+        );
+        println!(
+            "max |reward - recorded|    {:.3e}",
+            report.max_reward_deviation
+        );
+        println!("reset(seed) vs start state {:.3e}", report.reset_deviation);
+        for p in &plots {
+            println!("plot                       {}", p.display());
+        }
+    }
+    if !ok {
+        anyhow::bail!(
+            "episode {episode} of {}: replay deviates by {:.3e} from the recording, more than --tol {:e}",
+            a.file.display(),
+            report.max_deviation(),
+            a.tol
+        );
+    }
+    Ok(())
+}
