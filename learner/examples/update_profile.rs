@@ -4,10 +4,10 @@
 //! learner's own code (`disc_objective`, `Adam`, `PpoLearner`).
 //! `cargo run --release -p ess-learner --example update_profile [threads [disc|ppo]]`.
 
-use ess_learner::nets::Discriminator;
 use ess_learner::objective::combined::{DiscBatch, DiscWeights, disc_objective};
-use ess_learner::optim::Adam;
-use ess_learner::ppo::{PpoBatch, PpoLearner};
+use ess_learner::train::nets::Discriminator;
+use ess_learner::train::optim::Adam;
+use ess_learner::train::ppo::{PpoBatch, PpoLearner};
 use ess_proto::config::{LatentPrior, MethodConfig, PpoConfig};
 use rand::SeedableRng;
 use std::time::Instant;

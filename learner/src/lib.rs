@@ -1,43 +1,36 @@
 //! `ess-learner`: the learning side of Ess and the `ess` command.
 //!
-//! - [`actors`]: `ess-actor` processes over iceoryx2 shared memory ([`actors::ShmActors`]).
-//! - [`checkpoint`]: full checkpoints that `ess train --resume` continues bit-identically.
-//! - [`nets`]: tch networks (policy, value, discriminator body with D / Q_c / Q_eps heads).
-//! - [`objective`]: every objective term, one file each, headed by its equation.
-//! - [`optim`]: Adam with a saveable state (checkpoints).
-//! - [`ppo`]: PPO with GAE, including the p(c) update through Gumbel-softmax.
-//! - [`experts`]: PPO experts on each mode's task reward, and their evaluation.
-//! - [`train`]: Algorithm 1 for all seven methods (presets in `deploy/presets/`).
-//! - [`classifier`], [`eval`], [`metrics`]: the paper's evaluation (NMI, ENT, normalised
-//!   task reward).
-//! - [`presets`]: the method presets, embedded in the binary.
-//! - [`plot`], [`report`]: PNG figures.
-//! - [`runlog`]: the MCAP run log `run.mcap` (writer, truncation-tolerant reader);
-//!   [`replay`]: `ess replay`, re-simulating its evaluation episodes.
-//! - [`progress`]: `ess train --progress jsonl`, the machine-readable progress stream.
-//! - [`jobs`], [`serve`], [`client`]: the control plane (`ess serve`, `ess job ...`).
-//! - [`malloc`]: glibc allocator settings that spare the learner's steps page faults.
+//! It links the actor library (`ess-actor`) for two things: the single-process path,
+//! where the actors are threads of the learner (`--actors 0`, the resume-exact path and
+//! the tests' double), and the types both sides speak (`PolicyWeights`, `LatentSpec`,
+//! the `RolloutSource` seam). The actor never links the learner: an
+//! `ess-actor` process carries no libtorch and no tokio, only the pure-Rust policy
+//! forward, the envs and iceoryx2.
+//!
+//! The parts, one folder each:
+//!
+//! | folder | what |
+//! |---|---|
+//! | [`train`] | the training loop (Algorithm 1) as a `Trainer` whose methods are its stages, for all seven methods; [`train::nets`] (policy, value, D with heads Q_c / Q_eps), [`train::ppo`] (PPO, GAE, p(c) through Gumbel-softmax), [`train::optim`] (Adam with a saveable state), [`train::checkpoint`] (what `--resume` continues bit for bit) |
+//! | [`objective`] | every objective term, one file each headed by its equation, and their weighted sum for every preset ([`objective::combined`], Eq. 9) |
+//! | [`eval`] | the paper's evaluation: behaviour [`eval::classifier`], NMI / ENT ([`eval::metrics`]), normalised reward; reports, Table 1 view ([`eval::table`]) and PNG figures ([`eval::plot`], [`eval::report`]) |
+//! | [`runlog`] | the MCAP run log `run.mcap` (writer, truncation-tolerant reader) and [`runlog::replay`] (`ess replay`) |
+//! | [`control`] | the control plane: [`control::jobs`] (the job manager), [`control::serve`] (`ess serve`, gRPC), [`control::client`] (`ess job ...`) |
+//! | [`experts`] | per-mode expert policies: PPO, and SAC ([`experts::sac`]) where PPO falls short |
+//! | [`actors`] | the launcher and supervisor of `ess-actor` processes over iceoryx2 ([`actors::ShmActors`]) |
+//!
+//! Beside them: [`presets`] (the method presets, embedded), [`progress`] (`ess train
+//! --progress jsonl`), [`malloc`] (glibc settings that spare the learner's steps page
+//! faults). The `ess` binary (`main.rs`) only parses and dispatches; each subcommand is
+//! in `cli/<name>.rs`.
 
 pub mod actors;
-pub mod checkpoint;
-pub mod classifier;
-pub mod client;
+pub mod control;
 pub mod eval;
 pub mod experts;
-pub mod jobs;
 pub mod malloc;
-pub mod metrics;
-pub mod nets;
 pub mod objective;
-pub mod optim;
-pub mod plot;
-pub mod ppo;
 pub mod presets;
 pub mod progress;
-pub mod replay;
-pub mod report;
 pub mod runlog;
-pub mod sac;
-pub mod serve;
-pub mod table;
 pub mod train;

@@ -79,9 +79,9 @@ fn main() {
         Cmd::Job(a) => runtime().and_then(|rt| rt.block_on(cli::job::job(a))),
         Cmd::Report { runs } => runs
             .iter()
-            .map(|d| ess_learner::table::read_run(d).map_err(input_err))
+            .map(|d| ess_learner::eval::table::read_run(d).map_err(input_err))
             .collect::<Result<Vec<_>>>()
-            .map(|rows| print!("{}", ess_learner::table::markdown(&rows))),
+            .map(|rows| print!("{}", ess_learner::eval::table::markdown(&rows))),
         Cmd::Presets => {
             for (name, text) in PRESETS {
                 let doc = text

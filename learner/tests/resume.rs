@@ -5,7 +5,7 @@
 //! stream is process-global, and a run beside another in one process would draw from
 //! it mid-run.
 
-use ess_learner::checkpoint::dir_for;
+use ess_learner::train::checkpoint::dir_for;
 use ess_learner::train::{IterationLog, Progress, resume, run};
 use ess_proto::config::{CheckedConfig, ConfigBuilder};
 use std::path::Path;

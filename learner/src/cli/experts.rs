@@ -56,9 +56,9 @@ pub enum ExpertsCmd {
 /// Expert learners of `ess experts train`.
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum ExpertAlgo {
-    /// PPO with GAE, the imitation learner's ([`ess_learner::ppo`]).
+    /// PPO with GAE, the imitation learner's ([`ess_learner::train::ppo`]).
     Ppo,
-    /// Soft actor-critic ([`ess_learner::sac`]).
+    /// Soft actor-critic ([`ess_learner::experts::sac`]).
     Sac,
 }
 
@@ -76,7 +76,9 @@ pub fn experts(cmd: ExpertsCmd) -> Result<()> {
             let cfg = resolve(&config)?;
             if algo == ExpertAlgo::Sac && init_from.is_some() {
                 // Before the --init-from file checks, which would miss the point.
-                return Err(input_err(ess_learner::sac::SacInputError::InitFrom));
+                return Err(input_err(
+                    ess_learner::experts::sac::SacInputError::InitFrom,
+                ));
             }
             // SAC steps its one env in this process; PPO's actors may be processes.
             if algo == ExpertAlgo::Ppo
@@ -170,10 +172,13 @@ pub fn experts(cmd: ExpertsCmd) -> Result<()> {
             };
             let e = match algo {
                 ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)?,
-                ExpertAlgo::Sac => {
-                    ess_learner::sac::train_expert_sac(&tc, &cfg.sac, &mut report, &shutdown)
-                        .map_err(input_if::<ess_learner::sac::SacInputError>)?
-                }
+                ExpertAlgo::Sac => ess_learner::experts::sac::train_expert_sac(
+                    &tc,
+                    &cfg.sac,
+                    &mut report,
+                    &shutdown,
+                )
+                .map_err(input_if::<ess_learner::experts::sac::SacInputError>)?,
             };
             println!(
                 "expert {} mode {}: {} steps, mean return of the last episodes {:.3} -> {}",

@@ -94,12 +94,12 @@ pub fn parse_state(s: &str) -> Result<ess_proto::pb::JobState> {
 }
 
 pub async fn job(a: JobArgs) -> Result<()> {
-    use ess_learner::client::{self, event_json, job_detail, job_json, job_line};
+    use ess_learner::control::client::{self, event_json, job_detail, job_json, job_line};
     use ess_proto::pb;
     let server = a
         .server
         .or_else(|| std::env::var("ESS_SERVER").ok())
-        .unwrap_or_else(|| format!("http://{}", ess_learner::serve::DEFAULT_LISTEN));
+        .unwrap_or_else(|| format!("http://{}", ess_learner::control::serve::DEFAULT_LISTEN));
     let token_file = a
         .token_file
         .or_else(|| std::env::var_os("ESS_TOKEN_FILE").map(PathBuf::from));

@@ -25,7 +25,7 @@ pub struct ReplayArgs {
 }
 
 pub fn replay(a: ReplayArgs) -> Result<()> {
-    use ess_learner::replay::{ReplayError, list, load, plot, replay};
+    use ess_learner::runlog::replay::{ReplayError, list, load, plot, replay};
     let input = |e: ReplayError| match e {
         ReplayError::Plot(_) => anyhow::Error::new(e),
         e => input_err(e),

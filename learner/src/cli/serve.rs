@@ -9,7 +9,7 @@ use std::path::PathBuf;
 pub struct ServeArgs {
     /// Address to listen on (IP:PORT; port 0 picks a free one). The bound address is
     /// printed as the first line of stdout. A non-loopback address needs --token-file.
-    #[arg(long, default_value = ess_learner::serve::DEFAULT_LISTEN)]
+    #[arg(long, default_value = ess_learner::control::serve::DEFAULT_LISTEN)]
     listen: String,
     /// File holding the bearer token every JobService call must carry
     /// (`authorization: Bearer <token>`). Without it, calls are not authenticated.
@@ -28,8 +28,8 @@ pub struct ServeArgs {
 }
 
 pub async fn serve(a: ServeArgs) -> Result<()> {
-    use ess_learner::jobs::ManagerConfig;
-    use ess_learner::serve::ServeConfig;
+    use ess_learner::control::jobs::ManagerConfig;
+    use ess_learner::control::serve::ServeConfig;
     let addr: std::net::SocketAddr = a.listen.parse().map_err(|e| {
         input_err(format!(
             "--listen `{}`: expected IP:PORT (e.g. 127.0.0.1:50551): {e}",
@@ -39,7 +39,7 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
     let token = a
         .token_file
         .as_deref()
-        .map(ess_learner::client::read_token_file)
+        .map(ess_learner::control::client::read_token_file)
         .transpose()
         .map_err(input_err)?;
     if !addr.ip().is_loopback() {
@@ -93,5 +93,5 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
         },
         token,
     };
-    ess_learner::serve::serve(listener, cfg, shutdown_signal()).await
+    ess_learner::control::serve::serve(listener, cfg, shutdown_signal()).await
 }

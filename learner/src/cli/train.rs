@@ -129,7 +129,7 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         None => resolve(&args.config)?,
     };
     if let Some(dir) = &args.resume
-        && ess_learner::checkpoint::latest(&dir.join("checkpoints"))
+        && ess_learner::train::checkpoint::latest(&dir.join("checkpoints"))
             .map_err(input_err)?
             .is_none()
     {

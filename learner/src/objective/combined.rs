@@ -26,7 +26,7 @@ use super::{
     reward::RewardWeights,
     rim::rim,
 };
-use crate::nets::Discriminator;
+use crate::train::nets::Discriminator;
 use ess_proto::config::{DiscReward, MethodConfig};
 use tch::Tensor;
 
@@ -104,7 +104,7 @@ impl RewardWeights {
             disc: m.reward_disc,
             qc: m.reward_qc * info,
             qc_offset: if m.qc_reward_entropy {
-                crate::metrics::entropy(prior.iter().map(|&p| f64::from(p)))
+                crate::eval::metrics::entropy(prior.iter().map(|&p| f64::from(p)))
             } else {
                 0.0
             },

@@ -25,7 +25,7 @@ pub mod rim;
 
 #[cfg(test)]
 pub(crate) fn t(v: &[f32], cols: usize) -> tch::Tensor {
-    crate::nets::tensor_2d(v, cols)
+    crate::train::nets::tensor_2d(v, cols)
 }
 
 #[cfg(test)]

@@ -2,7 +2,7 @@
 //! normaliser, the rollout as tensors, and the minibatch draws.
 
 use super::records::EncoderAccuracy;
-use crate::nets::{Discriminator, tensor_2d};
+use crate::train::nets::{Discriminator, tensor_2d};
 use anyhow::{Result, bail};
 use ess_envs::{DemoSpec, Demos, generate_demos};
 use ess_proto::{CheckedConfig, Chunk};
@@ -70,7 +70,7 @@ impl ObsNorm {
     /// `[n, obs_dim]` observations normalised.
     pub fn apply(&self, obs: &[f32]) -> Tensor {
         let mut v = obs.to_vec();
-        crate::classifier::normalize_rows(&mut v, &self.mean, &self.std);
+        crate::eval::classifier::normalize_rows(&mut v, &self.mean, &self.std);
         tensor_2d(&v, self.mean.len())
     }
 }

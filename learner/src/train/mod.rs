@@ -15,7 +15,11 @@
 //! [`Trainer::finish`] the final evaluation and `summary.json`. The weighted objective
 //! itself lives in [`crate::objective::combined`].
 
+pub mod checkpoint;
 mod data;
+pub mod nets;
+pub mod optim;
+pub mod ppo;
 mod records;
 mod setup;
 mod stages;
@@ -64,7 +68,7 @@ pub struct LoopState {
     /// Summed per-phase seconds.
     pub phases: PhaseSeconds,
     /// Evaluation curve `(env steps, NMI, ENT, normalised reward)`.
-    pub curve: Vec<crate::report::CurvePoint>,
+    pub curve: Vec<crate::eval::report::CurvePoint>,
     /// The last iteration's row, written once the next one ran (so the last row can
     /// take the final evaluation's numbers).
     pub pending: Option<IterationLog>,
@@ -73,7 +77,7 @@ pub struct LoopState {
     /// Q_c's running estimate of the demos' mode marginal (`method.disc_code_reweight`).
     pub qc_marginal: Vec<f64>,
     /// PPO's reward scaler.
-    pub scaler: crate::ppo::RewardScaler,
+    pub scaler: crate::train::ppo::RewardScaler,
     /// Training seconds before this process (a resumed run).
     pub wall_before: f64,
     /// The iteration of the last checkpoint written or loaded.
@@ -85,7 +89,7 @@ pub struct LoopState {
 pub struct Prefetch {
     rollout: Rollout,
     /// The actors' states before it was collected.
-    before: Vec<crate::checkpoint::SavedWorker>,
+    before: Vec<crate::train::checkpoint::SavedWorker>,
     /// The weights it was collected under.
     weights: Arc<PolicyWeights>,
 }
@@ -148,10 +152,10 @@ pub fn run_config(out: &Path) -> Result<CheckedConfig> {
 }
 
 /// Continues the run in `out` from its latest checkpoint
-/// ([`crate::checkpoint`]) with the configuration it was started with, appending to its
+/// ([`crate::train::checkpoint`]) with the configuration it was started with, appending to its
 /// `metrics.csv`. The continued run is bit-identical to one never stopped (on the
 /// threaded transport; actor processes start fresh episodes, see
-/// [`crate::checkpoint::TrainState::actors`]).
+/// [`crate::train::checkpoint::TrainState::actors`]).
 pub fn resume(out: &Path, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<RunOutput> {
     let cfg = run_config(out)?;
     let mut t = Trainer::new(&cfg, out, progress, true)?;
@@ -283,19 +287,19 @@ impl Trainer<'_> {
     }
 
     /// Saves everything a resume needs after the iterations done (see
-    /// [`crate::checkpoint`]).
+    /// [`crate::train::checkpoint`]).
     pub fn checkpoint(&mut self) -> Result<()> {
         self.csv.flush()?;
         let it = self.st.iters_done;
-        let mut state = crate::checkpoint::TrainState {
-            format: crate::checkpoint::FORMAT,
+        let mut state = crate::train::checkpoint::TrainState {
+            format: crate::train::checkpoint::FORMAT,
             iteration: it,
             env_steps: self.st.env_steps,
             wall_s: self.wall_s(),
             phases: self.st.phases.clone(),
             curve: self.st.curve.clone(),
             pending: self.st.pending.clone(),
-            rng: crate::checkpoint::RngState::of(&self.st.rng),
+            rng: crate::train::checkpoint::RngState::of(&self.st.rng),
             qc_marginal: self.st.qc_marginal.clone(),
             scaler: self.st.scaler.clone(),
             adam_steps: Default::default(),
@@ -312,7 +316,7 @@ impl Trainer<'_> {
             None => state.actors = setup::actor_states(self.actors()?),
         }
         let n = &self.nets;
-        crate::checkpoint::save(
+        crate::train::checkpoint::save(
             &self.out.join("checkpoints"),
             [&n.vs, &n.prior_vs, &n.dvs],
             [&n.ppo.opt, &n.ppo.prior_opt, &n.dopt],
@@ -350,14 +354,14 @@ impl Trainer<'_> {
         let (cfg, k) = (self.cfg, self.dims.codes);
         if self.spec.name == "traj2d" {
             let png = self.out.join("trajectories.png");
-            crate::report::plot_traj2d(&png, &self.demos, &episodes, &cfg.method.name, k)?;
+            crate::eval::report::plot_traj2d(&png, &self.demos, &episodes, &cfg.method.name, k)?;
         }
         let steps = self.st.env_steps;
         self.st
             .curve
             .push((steps, result.nmi, result.ent, result.normalized_reward));
         let curves = self.out.join("curves.png");
-        crate::report::plot_curves(&curves, &cfg.method.name, &self.st.curve)?;
+        crate::eval::report::plot_curves(&curves, &cfg.method.name, &self.st.curve)?;
         let summary = Summary {
             method: cfg.method.name.clone(),
             env: cfg.env.name.clone(),

@@ -5,9 +5,9 @@ use super::data::{Dims, ExpertData, ObsNorm, load_or_generate_demos};
 use super::records::{CSV_HEADER, truncate_metrics};
 use super::{LoopState, Progress, Trainer};
 use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
-use crate::nets::{Discriminator, obs_columns};
-use crate::optim::Adam;
-use crate::ppo::PpoLearner;
+use crate::train::nets::{Discriminator, obs_columns};
+use crate::train::optim::Adam;
+use crate::train::ppo::PpoLearner;
 use anyhow::{Context, Result, bail};
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::make_env;
@@ -138,7 +138,9 @@ fn rollout_source(
 
 /// The actors' states for a checkpoint; none where the transport does not carry them
 /// (actor processes; `--resume` says so) or could not give them (logged).
-pub(super) fn actor_states(actors: &mut dyn RolloutSource) -> Vec<crate::checkpoint::SavedWorker> {
+pub(super) fn actor_states(
+    actors: &mut dyn RolloutSource,
+) -> Vec<crate::train::checkpoint::SavedWorker> {
     match actors.snapshot() {
         Ok(Some(states)) => states.iter().map(Into::into).collect(),
         Ok(None) => Vec::new(),
@@ -190,7 +192,7 @@ impl LoopState {
         k: usize,
         progress: &mut dyn Progress,
     ) -> Result<(Self, Option<Arc<PolicyWeights>>)> {
-        let dir = crate::checkpoint::latest(ckpt_dir)?.with_context(|| {
+        let dir = crate::train::checkpoint::latest(ckpt_dir)?.with_context(|| {
             format!(
                 "no complete checkpoint under {} to resume from",
                 ckpt_dir.display()
@@ -198,7 +200,7 @@ impl LoopState {
         })?;
         progress.message(&format!("resuming from {}", dir.display()));
         let n = nets;
-        let st = crate::checkpoint::load(
+        let st = crate::train::checkpoint::load(
             &dir,
             [&mut n.vs, &mut n.prior_vs, &mut n.dvs],
             [&mut n.ppo.opt, &mut n.ppo.prior_opt, &mut n.dopt],
@@ -316,7 +318,7 @@ impl<'c> Trainer<'c> {
             codes: cfg.env.n_modes,
             disc_cols,
         };
-        let (mean, std) = crate::classifier::feature_stats(&demos.unlabeled.obs, dims.obs);
+        let (mean, std) = crate::eval::classifier::feature_stats(&demos.unlabeled.obs, dims.obs);
         let norm = ObsNorm { mean, std };
         let expert = ExpertData::new(&demos, &norm, dims);
         progress.message("behaviour classifier");

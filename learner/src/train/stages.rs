@@ -4,10 +4,10 @@ use super::data::{CodeReweight, Rollout, sample_idx};
 use super::records::prior_string;
 use super::{IterationLog, Trainer};
 use crate::eval::EvalResult;
-use crate::nets::{export_policy, tensor_2d, tensor_to_vec};
 use crate::objective::combined::{DiscBatch, DiscTerms, DiscWeights, disc_objective};
 use crate::objective::reward::{RewardWeights, disc_term, policy_reward};
-use crate::ppo::{PpoBatch, rollout_gae};
+use crate::train::nets::{export_policy, tensor_2d, tensor_to_vec};
+use crate::train::ppo::{PpoBatch, rollout_gae};
 use anyhow::{Context, Result, bail};
 use ess_actor::{EvalEpisode, LocalEval, PolicyWeights, RolloutSource};
 use ess_proto::Chunk;
@@ -201,7 +201,7 @@ impl Trainer<'_> {
     }
 
     /// GAE, then PPO on policy and value; with the Gumbel prior, p(c) through the
-    /// recomputed codes (Sec. 3.2, [`crate::ppo`]).
+    /// recomputed codes (Sec. 3.2, [`crate::train::ppo`]).
     pub fn update_policy(&mut self, r: &Rollout, rw: &Rewards, log: &mut IterationLog) {
         let (ad, k) = (self.dims.act, self.dims.codes);
         let (adv, ret) = rollout_gae(

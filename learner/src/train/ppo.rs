@@ -7,8 +7,8 @@
 //! reaches the logits through `c` (Sec. 3.2, "passing the gradient back to the latent
 //! skill distribution").
 
-use crate::nets::{Mlp, Policy, tensor_2d};
-use crate::optim::Adam;
+use crate::train::nets::{Mlp, Policy, tensor_2d};
+use crate::train::optim::Adam;
 use ess_proto::Chunk;
 use ess_proto::config::{LatentPrior, PpoConfig};
 use rand::seq::SliceRandom;
@@ -338,8 +338,11 @@ impl PpoLearner {
             return PpoStats::default();
         }
         // One read of the statistics for the whole update.
-        let mean =
-            crate::nets::tensor_to_vec(&Tensor::stack(&sums, 0).mean_dim(0, false, Kind::Float));
+        let mean = crate::train::nets::tensor_to_vec(&Tensor::stack(&sums, 0).mean_dim(
+            0,
+            false,
+            Kind::Float,
+        ));
         let at = |i: usize| mean.get(i).copied().map_or(f64::NAN, f64::from);
         PpoStats {
             policy_loss: at(0),
@@ -372,7 +375,9 @@ impl PpoLearner {
 
     /// p(c) as probabilities.
     pub fn prior_probs(&self) -> Vec<f32> {
-        tch::no_grad(|| crate::nets::tensor_to_vec(&self.prior_logits.softmax(-1, Kind::Float)))
+        tch::no_grad(|| {
+            crate::train::nets::tensor_to_vec(&self.prior_logits.softmax(-1, Kind::Float))
+        })
     }
 }
 
@@ -509,7 +514,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         let stats = l.update(&tiny_batch(48, 3), &mut rng);
         assert!(stats.policy_loss.is_finite() && stats.value_loss.is_finite());
-        crate::nets::tensor_to_vec(&l.prior_logits)
+        crate::train::nets::tensor_to_vec(&l.prior_logits)
     }
 
     #[test]

@@ -70,7 +70,7 @@ pub enum ReplayError {
     },
     /// Drawing the plot failed.
     #[error(transparent)]
-    Plot(#[from] crate::plot::PlotError),
+    Plot(#[from] crate::eval::plot::PlotError),
 }
 
 /// A run log's evaluation episodes, each with its recorded steps.
@@ -337,7 +337,7 @@ pub fn qpos_len(env: &str) -> Option<usize> {
 /// Draws `traj` into `out` (and a body path into `<stem>-path.png` for MuJoCo envs);
 /// returns the files written.
 pub fn plot(out: &Path, traj: &Trajectory, title: &str) -> Result<Vec<PathBuf>, ReplayError> {
-    use crate::plot::{TrajPanel, draw_curves, draw_trajectories};
+    use crate::eval::plot::{TrajPanel, draw_curves, draw_trajectories};
     let xy = |states: &[Vec<f64>], i: usize, j: usize| -> Vec<(f32, f32)> {
         states
             .iter()

@@ -3,7 +3,7 @@
 //! standard deviation over seeds beside the paper's Table 1 value (the paper reports
 //! means over 10 seeds).
 
-use crate::metrics::mean_std;
+use crate::eval::metrics::mean_std;
 use crate::presets::paper_table1;
 use serde_json::Value;
 use std::collections::BTreeMap;

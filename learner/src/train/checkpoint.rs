@@ -19,8 +19,8 @@
 //! normalisers, the behaviour classifier, and libtorch's random stream, which the
 //! training loop re-seeds from the seed and the iteration at every iteration.
 
-use crate::optim::{Adam, AdamState};
-use crate::report::CurvePoint;
+use crate::eval::report::CurvePoint;
+use crate::train::optim::{Adam, AdamState};
 use crate::train::{IterationLog, PhaseSeconds};
 use anyhow::{Context, Result, bail};
 use ess_actor::{PolicyWeights, WorkerState};
@@ -180,8 +180,8 @@ impl SavedWorker {
     }
 }
 
-/// The reward scaler's statistics ([`crate::ppo::RewardScaler`]).
-pub type ScalerState = crate::ppo::RewardScaler;
+/// The reward scaler's statistics ([`crate::train::ppo::RewardScaler`]).
+pub type ScalerState = crate::train::ppo::RewardScaler;
 
 /// Everything of a run between two iterations that is not a tensor (`state.json`).
 #[derive(Debug, Clone, Serialize, Deserialize)]

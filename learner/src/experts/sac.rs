@@ -60,7 +60,7 @@ use crate::experts::{
     ExpertIteration, ExpertTrainConfig, RunningStats, csv_path, expert_meta, last_csv_iteration,
     open_csv, replay_path, state_path,
 };
-use crate::nets::{Mlp, tensor_2d, tensor_to_vec};
+use crate::train::nets::{Mlp, tensor_2d, tensor_to_vec};
 
 /// Replay states whose mean actor log std becomes the exported `log_std`.
 const EXPORT_STATES: usize = 10_000;
@@ -592,12 +592,13 @@ pub fn train_expert_sac(
         });
     }
     let (od, ad) = (spec.obs_dim, spec.act_dim);
-    let p =
-        crate::nets::obs_columns(sc.obs_prefix, od).ok_or_else(|| SacInputError::ObsPrefix {
+    let p = crate::train::nets::obs_columns(sc.obs_prefix, od).ok_or_else(|| {
+        SacInputError::ObsPrefix {
             prefix: sc.obs_prefix,
             env: spec.name.clone(),
             obs_dim: od,
-        })?;
+        }
+    })?;
     tch::set_num_threads(cfg.torch_threads.max(1) as i32);
     tch::manual_seed(cfg.seed as i64);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5AC);

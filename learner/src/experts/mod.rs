@@ -3,7 +3,7 @@
 //! different goals").
 //!
 //! `ess experts train --env E --mode k` trains mode `k`'s expert with the same PPO as
-//! the imitation learner ([`crate::ppo`]), on the env's *task* reward of that mode
+//! the imitation learner ([`crate::train::ppo`]), on the env's *task* reward of that mode
 //! ([`ess_envs::Env::task_rewards`]) instead of a discriminator. The policy has no
 //! latent: its eps and code inputs are held at zero (the file records them as
 //! `extra_inputs`). Observations are normalised with running statistics of every
@@ -15,6 +15,8 @@
 //! variables) and `<file>.csv` (one row per iteration), so `--resume` continues a run.
 //! `--init-from FILE` starts a new expert from another expert of the same env (its
 //! policy, value and normaliser, and its step count), e.g. a runner from a balancer.
+
+pub mod sac;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -31,8 +33,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tch::{Tensor, nn};
 
-use crate::nets::{export_policy, tensor_2d, tensor_to_vec};
-use crate::ppo::{PpoBatch, PpoLearner, RewardScaler, column, rollout_gae};
+use crate::train::nets::{export_policy, tensor_2d, tensor_to_vec};
+use crate::train::ppo::{PpoBatch, PpoLearner, RewardScaler, column, rollout_gae};
 
 /// What to train.
 #[derive(Debug, Clone)]
@@ -329,7 +331,7 @@ pub fn train_expert(
         recent.drain(..keep);
         let norm = |x: &[f32]| {
             let mut v = x.to_vec();
-            crate::classifier::normalize_rows(&mut v, &obs_mean, &obs_std);
+            crate::eval::classifier::normalize_rows(&mut v, &obs_mean, &obs_std);
             tensor_2d(&v, od)
         };
         let obs_n = norm(&all.obs);

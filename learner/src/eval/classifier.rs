@@ -3,8 +3,8 @@
 //! predict the behaviour mode, then used to label every step of the policy's
 //! evaluation episodes.
 
-use crate::nets::{Mlp, tensor_2d};
 use crate::objective::qc_ce::hard_cross_entropy;
+use crate::train::nets::{Mlp, tensor_2d};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tch::{Kind, Tensor, nn, nn::Module, nn::OptimizerConfig};

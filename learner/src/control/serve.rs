@@ -10,7 +10,7 @@
 //! When the shutdown future resolves, health turns NOT_SERVING, running jobs are stopped
 //! gracefully ([`Manager::shutdown`]) and the server returns.
 
-use crate::jobs::{Manager, ManagerConfig};
+use crate::control::jobs::{Manager, ManagerConfig};
 use ess_proto::pb;
 use ess_proto::pb::job_service_server::{JobService, JobServiceServer};
 use std::future::Future;

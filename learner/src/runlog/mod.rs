@@ -29,6 +29,8 @@
 //! evaluation, and continues writing, so a resumed run's log reads like an
 //! uninterrupted one.
 
+pub mod replay;
+
 use crate::train::IterationLog;
 use ess_actor::EvalEpisode;
 use ess_proto::config::LatentPrior;

@@ -281,7 +281,7 @@ mod tests {
         let mut v: Vec<_> = vs
             .variables()
             .into_iter()
-            .map(|(n, t)| (n, crate::nets::tensor_to_vec(&t.flatten(0, -1))))
+            .map(|(n, t)| (n, crate::train::nets::tensor_to_vec(&t.flatten(0, -1))))
             .collect();
         v.sort_by(|a, b| a.0.cmp(&b.0));
         v

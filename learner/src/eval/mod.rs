@@ -10,8 +10,14 @@
 //!    but disentangled policy of an unsupervised method is not punished, while a
 //!    collapsed one is).
 
-use crate::classifier::BehaviourClassifier;
-use crate::metrics::{Confusion, best_assignment, ent, nmi, normalized_reward};
+pub mod classifier;
+pub mod metrics;
+pub mod plot;
+pub mod report;
+pub mod table;
+
+use crate::eval::classifier::BehaviourClassifier;
+use crate::eval::metrics::{Confusion, best_assignment, ent, nmi, normalized_reward};
 use ess_actor::{EvalEpisode, EvalJob, EvalRunner, LatentSpec, PolicyWeights};
 use ess_envs::{ScriptedExpert, expert_episode};
 use rand::{Rng, SeedableRng};

@@ -2,7 +2,7 @@
 //! demonstrations beside the learned policy's trajectories, one colour per latent code)
 //! and `curves.png` (NMI, ENT and normalised task reward over training, cf. Fig. 5).
 
-use crate::plot::{TrajPanel, draw_curves, draw_trajectories};
+use crate::eval::plot::{TrajPanel, draw_curves, draw_trajectories};
 use anyhow::Result;
 use ess_actor::EvalEpisode;
 use ess_envs::Demos;
