@@ -543,8 +543,9 @@ pub struct ShmWeightsHeader {
 const WHEADER_BYTES: usize = std::mem::size_of::<ShmWeightsHeader>();
 
 /// Owned policy weights and latent spec as they travel (the actor crate turns them into
-/// its `PolicyWeights`).
-#[derive(Debug, Clone, PartialEq)]
+/// its `PolicyWeights`); also how a checkpoint keeps the weights an overlapped rollout
+/// ran under (serde, in its `state.json`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct WeightsMsg {
     /// Run id hash.
     pub run_id_hash: u64,

@@ -23,7 +23,7 @@ use crate::eval::report::CurvePoint;
 use crate::train::optim::{Adam, AdamState};
 use crate::train::{IterationLog, PhaseSeconds};
 use anyhow::{Context, Result, bail};
-use ess_actor::{PolicyWeights, WorkerState};
+use ess_actor::WorkerState;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -35,57 +35,6 @@ pub const FORMAT: u32 = 1;
 
 /// The variable stores, in file order.
 pub const STORES: [&str; 3] = ["policy", "prior", "disc"];
-
-/// Policy weights as the actors run them ([`PolicyWeights`]), for `state.json`.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct SavedWeights {
-    /// Version.
-    pub version: u64,
-    /// Mean network layer widths.
-    pub sizes: Vec<usize>,
-    /// Mean network parameters (wire layout).
-    pub params: Vec<f32>,
-    /// Log standard deviation.
-    pub log_std: Vec<f32>,
-    /// p(c) logits.
-    pub prior_logits: Vec<f32>,
-    /// Observation mean.
-    pub obs_mean: Vec<f32>,
-    /// Observation std.
-    pub obs_std: Vec<f32>,
-}
-
-impl From<&PolicyWeights> for SavedWeights {
-    fn from(w: &PolicyWeights) -> Self {
-        Self {
-            version: w.version,
-            sizes: w.mean.layout().sizes.clone(),
-            params: w.mean.params().to_vec(),
-            log_std: w.log_std.clone(),
-            prior_logits: w.prior_logits.clone(),
-            obs_mean: w.obs_mean.clone(),
-            obs_std: w.obs_std.clone(),
-        }
-    }
-}
-
-impl SavedWeights {
-    /// The weights, checked.
-    pub fn to_weights(&self) -> Result<PolicyWeights> {
-        let layout = ess_proto::MlpLayout {
-            sizes: self.sizes.clone(),
-        };
-        Ok(PolicyWeights {
-            version: self.version,
-            mean: ess_actor::Mlp::new(layout, self.params.clone())
-                .context("behaviour weights in state.json")?,
-            log_std: self.log_std.clone(),
-            prior_logits: self.prior_logits.clone(),
-            obs_mean: self.obs_mean.clone(),
-            obs_std: self.obs_std.clone(),
-        })
-    }
-}
 
 /// A ChaCha8 generator's position.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -212,10 +161,11 @@ pub struct TrainState {
     /// (actor processes), in which case a resumed run starts fresh episodes.
     pub actors: Vec<SavedWorker>,
     /// With `run.pipeline = "overlap"`: the weights the next iteration's rollout was
-    /// collected under (the actors' states above are those from before it), so a
-    /// resume collects it again; `None` in the synchronous pipeline.
+    /// collected under, as they travel to actor processes (the actors' states above
+    /// are those from before it), so a resume collects it again; `None` in the
+    /// synchronous pipeline.
     #[serde(default)]
-    pub behaviour: Option<SavedWeights>,
+    pub behaviour: Option<ess_proto::shm::WeightsMsg>,
 }
 
 /// Directory of the checkpoint after `iteration` iterations.

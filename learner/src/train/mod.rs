@@ -311,7 +311,8 @@ impl Trainer<'_> {
         match &self.prefetch {
             Some(p) => {
                 state.actors = p.before.clone();
-                state.behaviour = Some(p.weights.as_ref().into());
+                let w = ess_actor::shm::weights_msg(&p.weights, &self.latent, "");
+                state.behaviour = Some(w);
             }
             None => state.actors = setup::actor_states(self.actors()?),
         }

@@ -227,10 +227,13 @@ impl LoopState {
                 .restore(&states)
                 .with_context(|| format!("{}: restoring the actors", dir.display()))?;
         }
-        let behaviour = match &st.behaviour {
-            Some(w) => Some(Arc::new(w.to_weights().with_context(|| {
-                format!("{}: the overlapped rollout's weights", dir.display())
-            })?)),
+        let behaviour = match st.behaviour.clone() {
+            Some(m) => {
+                let (w, _) = ess_actor::shm::policy_from_msg(m).with_context(|| {
+                    format!("{}: the overlapped rollout's weights", dir.display())
+                })?;
+                Some(Arc::new(w))
+            }
             None => None,
         };
         let state = Self {
