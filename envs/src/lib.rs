@@ -25,6 +25,7 @@
 //! This crate never links libtorch, tokio or tonic; it links MuJoCo (through
 //! `mujoco-rs`) for [`reacher`], [`pusher`] and the locomotion envs.
 
+mod atomic;
 pub mod demos;
 pub mod env;
 pub mod expert;
@@ -50,32 +51,4 @@ pub use reacher::{Reacher, ReacherConfig};
 pub use traj2d::{Traj2D, Traj2DConfig};
 pub use walker2d::{Walker2d, Walker2dConfig};
 
-/// Writes `bytes` to `path` atomically: a temporary file in the same directory is
-/// written, synced and renamed over `path`, so no half-written file is ever seen. On
-/// error, returns the path the failing operation touched with the I/O error.
-pub fn write_atomic(
-    path: &std::path::Path,
-    bytes: &[u8],
-) -> Result<(), (std::path::PathBuf, std::io::Error)> {
-    use std::io::Write;
-    let file_name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "file".to_owned());
-    let tmp = path.with_file_name(format!(".{file_name}.tmp-{}", std::process::id()));
-    let write = || -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()
-    };
-    if let Err(e) = write() {
-        // Best effort: the temporary file is garbage now.
-        let _ = std::fs::remove_file(&tmp);
-        return Err((tmp, e));
-    }
-    if let Err(e) = std::fs::rename(&tmp, path) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err((path.to_owned(), e));
-    }
-    Ok(())
-}
+pub use atomic::{AtomicFile, write_atomic};

@@ -14,7 +14,6 @@
 use std::fmt::Display;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -208,45 +207,29 @@ fn render_err(path: &Path) -> impl Fn(&dyn Display) -> PlotError + '_ {
     }
 }
 
-/// Renders via `draw` into a temporary PNG next to `path`, then renames it into place.
+/// Renders via `draw` into a temporary PNG next to `path`, then renames it into place
+/// ([`ess_envs::AtomicFile`]).
 fn write_atomically<F>(path: &Path, size: (u32, u32), draw: F) -> Result<(), PlotError>
 where
     F: FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), PlotError>,
 {
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let Some(name) = path.file_name() else {
+    if path.file_name().is_none() {
         return Err(PlotError::NoFileName {
             path: path.to_path_buf(),
         });
-    };
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let unique = COUNTER.fetch_add(1, Ordering::Relaxed);
-    // Keep a `.png` extension: the encoder picks the format from it.
-    let tmp = dir.join(format!(
-        ".{}.{}-{unique}.tmp.png",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let rendered = (|| {
-        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
-        draw(&root)?;
-        root.present().map_err(|e| render_err(path)(&e))
-    })();
-    let result = rendered.and_then(|()| {
-        std::fs::rename(&tmp, path).map_err(|source| PlotError::Persist {
-            path: path.to_path_buf(),
-            tmp: tmp.clone(),
-            source,
-        })
-    });
-    if result.is_err() {
-        // Best effort: the temporary file may not exist if rendering failed early.
-        let _ = std::fs::remove_file(&tmp);
     }
-    result
+    let file = ess_envs::AtomicFile::new(path);
+    {
+        let root = BitMapBackend::new(file.tmp(), size).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(|e| render_err(path)(&e))?;
+    }
+    let tmp = file.tmp().to_path_buf();
+    file.commit().map_err(|(_, source)| PlotError::Persist {
+        path: path.to_path_buf(),
+        tmp,
+        source,
+    })
 }
 
 /// Axis-aligned bounds of finite points.

@@ -316,13 +316,14 @@ fn save_state(sac: &Sac, stats: &RunningStats, path: &std::path::Path) -> Result
     write_via_tmp(&named, path, "SAC state")
 }
 
-/// Writes `named` to `path` through `<path minus extension>.tmp` and a rename, so a stop
-/// mid-write leaves the old file; errors name `what` and the file.
+/// Writes `named` to `path` atomically ([`ess_envs::AtomicFile`]), so a stop mid-write
+/// leaves the old file; errors name `what` and the file.
 fn write_via_tmp<S: AsRef<str>>(named: &[(S, Tensor)], path: &Path, what: &str) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    Tensor::write_safetensors(named, &tmp)
-        .with_context(|| format!("writing {what} {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+    let file = ess_envs::AtomicFile::new(path);
+    Tensor::write_safetensors(named, file.tmp())
+        .with_context(|| format!("writing {what} {}", file.tmp().display()))?;
+    file.commit()
+        .map_err(|(p, e)| anyhow::Error::new(e).context(format!("writing {what} {}", p.display())))
 }
 
 /// Every tensor of the safetensors file at `path` by name; an error says "reading `what`".
