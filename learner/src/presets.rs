@@ -51,33 +51,64 @@ pub fn env_defaults(env: &str) -> Option<&'static str> {
         .map(|(_, t)| *t)
 }
 
+/// A preset name or an env defaults layer that is not one.
+#[derive(Debug, thiserror::Error)]
+pub enum PresetError {
+    /// No preset of that name.
+    #[error("unknown preset `{name}`; known presets: {known}")]
+    Unknown {
+        /// The name asked for.
+        name: String,
+        /// The known presets, comma-separated.
+        known: String,
+    },
+    /// The layer's TOML does not parse or has a field of the wrong shape.
+    #[error(transparent)]
+    Layer(#[from] ess_proto::config::ConfigError),
+    /// A `[per_method.<name>]` table names no preset.
+    #[error("{layer}: `per_method.{method}` is not a method; known methods: {known}")]
+    NotAMethod {
+        /// The layer (`env defaults <env>`).
+        layer: String,
+        /// The table's method name.
+        method: String,
+        /// The known methods, comma-separated.
+        known: String,
+    },
+}
+
+fn known_presets() -> String {
+    PRESETS
+        .iter()
+        .map(|(n, _)| *n)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// Parses the defaults layer of `env`, checking that each of its `[per_method.<name>]`
 /// tables names a known preset.
-pub fn parse_env_layer(env: &str, text: &str) -> Result<ess_proto::config::EnvLayer, String> {
-    let source = format!("env defaults {env}");
-    let layer = ess_proto::config::EnvLayer::parse(&source, text).map_err(|e| e.to_string())?;
+pub fn parse_env_layer(env: &str, text: &str) -> Result<ess_proto::config::EnvLayer, PresetError> {
+    let layer_name = format!("env defaults {env}");
+    let layer = ess_proto::config::EnvLayer::parse(&layer_name, text)?;
     if let Some(bad) = layer.methods().find(|m| preset(m).is_err()) {
-        let known: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
-        return Err(format!(
-            "{source}: `per_method.{bad}` is not a method; known methods: {}",
-            known.join(", ")
-        ));
+        return Err(PresetError::NotAMethod {
+            layer: layer_name,
+            method: bad.to_string(),
+            known: known_presets(),
+        });
     }
     Ok(layer)
 }
 
 /// The TOML of preset `name`, or an error listing the known ones.
-pub fn preset(name: &str) -> Result<&'static str, String> {
+pub fn preset(name: &str) -> Result<&'static str, PresetError> {
     PRESETS
         .iter()
         .find(|(n, _)| *n == name)
         .map(|(_, t)| *t)
-        .ok_or_else(|| {
-            let known: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
-            format!(
-                "unknown preset `{name}`; known presets: {}",
-                known.join(", ")
-            )
+        .ok_or_else(|| PresetError::Unknown {
+            name: name.to_string(),
+            known: known_presets(),
         })
 }
 
@@ -436,12 +467,15 @@ mod tests {
             "reacher",
             "[per_method.essinfogail.method]\nreward_qc = 1.0\n",
         )
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(
             e.contains("per_method.essinfogail") && e.contains("env defaults reacher"),
             "{e}"
         );
-        let e = parse_env_layer("reacher", "per_method = 3\n").unwrap_err();
+        let e = parse_env_layer("reacher", "per_method = 3\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("`per_method` must be a table"), "{e}");
         // A bad key inside the table is named with the table it came from.
         let layer =
@@ -457,7 +491,7 @@ mod tests {
 
     #[test]
     fn unknown_preset_lists_the_known_ones() {
-        let e = preset("gale").unwrap_err();
+        let e = preset("gale").unwrap_err().to_string();
         assert!(e.contains("`gale`") && e.contains("ess-infogail"), "{e}");
     }
 }

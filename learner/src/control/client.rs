@@ -27,21 +27,46 @@ impl tonic::service::Interceptor for BearerToken {
 /// A JobService client that sends the token.
 pub type Client = JobServiceClient<InterceptedService<Channel, BearerToken>>;
 
+/// A token file that cannot serve as one.
+#[derive(Debug, thiserror::Error)]
+pub enum TokenFileError {
+    /// Unreadable.
+    #[error("cannot read token file {}: {source}", path.display())]
+    Read {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Whitespace only.
+    #[error("token file {} is empty", path.display())]
+    Empty {
+        /// The file.
+        path: std::path::PathBuf,
+    },
+    /// Characters an HTTP header cannot carry.
+    #[error("token file {}: the token must be printable ASCII without spaces", path.display())]
+    NotPrintable {
+        /// The file.
+        path: std::path::PathBuf,
+    },
+}
+
 /// Reads a token file: its content with surrounding whitespace trimmed. An unreadable
 /// or empty file, or one holding characters a header cannot carry, is an error naming
 /// the file.
-pub fn read_token_file(path: &Path) -> Result<String, String> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| format!("cannot read token file {}: {e}", path.display()))?;
+pub fn read_token_file(path: &Path) -> Result<String, TokenFileError> {
+    let path_buf = || path.to_path_buf();
+    let text = std::fs::read_to_string(path).map_err(|source| TokenFileError::Read {
+        path: path_buf(),
+        source,
+    })?;
     let token = text.trim();
     if token.is_empty() {
-        return Err(format!("token file {} is empty", path.display()));
+        return Err(TokenFileError::Empty { path: path_buf() });
     }
     if !token.bytes().all(|b| b.is_ascii_graphic()) {
-        return Err(format!(
-            "token file {}: the token must be printable ASCII without spaces",
-            path.display()
-        ));
+        return Err(TokenFileError::NotPrintable { path: path_buf() });
     }
     Ok(token.to_string())
 }
@@ -255,10 +280,22 @@ mod tests {
         std::fs::write(&f, "  abc123\n").unwrap();
         assert_eq!(read_token_file(&f).unwrap(), "abc123");
         std::fs::write(&f, "\n \n").unwrap();
-        assert!(read_token_file(&f).unwrap_err().contains("is empty"));
+        assert!(
+            read_token_file(&f)
+                .unwrap_err()
+                .to_string()
+                .contains("is empty")
+        );
         std::fs::write(&f, "two words").unwrap();
-        assert!(read_token_file(&f).unwrap_err().contains("printable"));
-        let e = read_token_file(&dir.path().join("nope")).unwrap_err();
+        assert!(
+            read_token_file(&f)
+                .unwrap_err()
+                .to_string()
+                .contains("printable")
+        );
+        let e = read_token_file(&dir.path().join("nope"))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("cannot read token file") && e.contains("nope"),
             "{e}"
