@@ -157,6 +157,16 @@ pub struct DiscTerms {
     pub expert_qc_logits: Tensor,
 }
 
+/// Adds `weight * value()` to `loss` and returns the value, computing it only when
+/// `weight > 0` (a term switched off costs nothing and is logged as absent).
+fn weighted(loss: &mut Tensor, weight: f64, value: impl FnOnce() -> Tensor) -> Option<Tensor> {
+    (weight > 0.0).then(|| {
+        let v = value();
+        *loss += &v * weight;
+        v
+    })
+}
+
 /// Eq. 9's D/Q side on one batch, in one forward pass of `disc`. `log_prior` is
 /// `log p(c)` `[K]`, detached by the caller unless RIM is to move p(c). The
 /// contrastive noise is drawn from libtorch's generator.
@@ -205,52 +215,35 @@ pub fn disc_objective(
     if w.grad_penalty > 0.0 {
         loss += r1_penalty(&expert_x, &oe_d) * w.grad_penalty;
     }
-    let mut term = |weight: f64, value: Tensor| -> Option<Tensor> {
-        (weight > 0.0).then(|| {
-            loss += &value * weight;
-            value
-        })
-    };
-    let qeps = if w.qeps > 0.0 {
-        term(w.qeps, qeps_mae(&part(&out.qeps, 0, n_gen), b.gen_eps))
-    } else {
-        None
-    };
-    let qc_generated = if w.qc_generated > 0.0 {
-        term(w.qc_generated, soft_cross_entropy(&og_qc, b.gen_code))
-    } else {
-        None
-    };
-    if w.qc_full_labels > 0.0 {
-        term(w.qc_full_labels, hard_cross_entropy(&oe_qc, b.expert_mode));
-    }
-    let qc_labeled = if n_lab > 0 {
+    let l = &mut loss;
+    let qeps = weighted(l, w.qeps, || {
+        qeps_mae(&part(&out.qeps, 0, n_gen), b.gen_eps)
+    });
+    let qc_generated = weighted(l, w.qc_generated, || soft_cross_entropy(&og_qc, b.gen_code));
+    weighted(l, w.qc_full_labels, || {
+        hard_cross_entropy(&oe_qc, b.expert_mode)
+    });
+    let w_lab = if n_lab > 0 { w.qc_labeled } else { 0.0 };
+    let qc_labeled = weighted(l, w_lab, || {
         let lab_qc = part(&out.qc_logits, n_gen + n_exp, n_lab);
-        term(w.qc_labeled, hard_cross_entropy(&lab_qc, b.labels))
-    } else {
-        None
-    };
+        hard_cross_entropy(&lab_qc, b.labels)
+    });
     let (rim_entropy, rim_kl) = if w.rim > 0.0 {
         let r = rim(&oe_qc, log_prior, &disc.encoder_params());
-        term(
-            w.rim,
-            r.weighted(w.rim_cond_entropy, w.rim_marginal_kl, w.rim_l2),
-        );
+        *l += r.weighted(w.rim_cond_entropy, w.rim_marginal_kl, w.rim_l2) * w.rim;
         (Some(r.cond_entropy), Some(r.marginal_kl))
     } else {
         (None, None)
     };
-    let contrastive = if n_con > 0 {
+    let w_con = if n_con > 0 { w.contrastive } else { 0.0 };
+    let contrastive = weighted(l, w_con, || {
         let noisy = part(&out.qc_logits, n_gen + n_exp + n_lab, n_con);
-        let l = nt_xent(
+        nt_xent(
             &oe_qc.narrow(0, 0, n_con),
             &noisy,
             w.contrastive_temperature,
-        );
-        term(w.contrastive, l)
-    } else {
-        None
-    };
+        )
+    });
     DiscTerms {
         loss,
         bce,
