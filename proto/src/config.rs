@@ -78,6 +78,23 @@ pub enum LatentPrior {
     Gumbel,
 }
 
+/// Which distribution the actors draw each episode's latent skill `c` from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RolloutCodes {
+    /// From p(c) itself (Sec. 3.2, the paper's code): a code the demonstrations hold
+    /// 0.5% of is rolled out in 0.5% of the episodes once p(c) has learned that.
+    #[default]
+    Prior,
+    /// From a uniform Gumbel-softmax, so every code gets rollouts whatever p(c) is;
+    /// needs `method.prior = "gumbel"`. p(c) follows Q_c's label marginal on the
+    /// unlabeled demonstrations (the minimum over p(c) of L_RIM's KL term, Eq. 8-9)
+    /// instead of the PPO surrogate, and is RIM's label prior; with
+    /// `method.disc_code_reweight` D's generated batch is drawn at p(c)'s code
+    /// proportions (importance resampling of the uniform rollouts).
+    Uniform,
+}
+
 /// Where the actors run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -248,6 +265,8 @@ pub struct MethodConfig {
     /// generated mixture of the same mode proportions (the alignment the learnable p(c)
     /// of Sec. 3 is for) and stops calling rare-but-expert states "policy".
     pub disc_code_reweight: bool,
+    /// Which distribution rollouts draw codes from ([`RolloutCodes`]).
+    pub rollout_codes: RolloutCodes,
 }
 
 impl Default for MethodConfig {
@@ -281,6 +300,7 @@ impl Default for MethodConfig {
             disc_reward: DiscReward::Logit,
             prior_score_coef: 0.0,
             disc_code_reweight: false,
+            rollout_codes: RolloutCodes::Prior,
         }
     }
 }
@@ -863,6 +883,12 @@ impl TrainConfig {
             "\"none\"",
             "a method without latent skill cannot reward or train Q_c on generated codes",
         )?;
+        range(
+            m.rollout_codes == RolloutCodes::Prior || m.prior == LatentPrior::Gumbel,
+            "method.rollout_codes",
+            "\"uniform\"",
+            "needs a learned p(c) (method.prior = \"gumbel\") to weight the rollouts by",
+        )?;
         let p = &self.ppo;
         range(
             !p.hidden.is_empty() && !p.hidden.contains(&0),
@@ -1096,6 +1122,24 @@ mod tests {
                 .to_string();
             assert!(e.contains(key), "{arg}: {e}");
         }
+    }
+
+    #[test]
+    fn uniform_rollout_codes_need_a_learned_prior() {
+        let e = ConfigBuilder::new()
+            .set("method.prior=\"uniform\"")
+            .unwrap()
+            .set("method.rollout_codes=\"uniform\"")
+            .unwrap()
+            .build()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("method.rollout_codes"), "{e}");
+        let ok = ConfigBuilder::new()
+            .set("method.rollout_codes=\"uniform\"")
+            .unwrap()
+            .build();
+        assert!(ok.is_ok(), "{ok:?}");
     }
 
     #[test]

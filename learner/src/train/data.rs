@@ -109,6 +109,23 @@ impl ExpertData {
         }
     }
 
+    /// The share of each of `k` modes among the unlabeled demonstrations (their true
+    /// modes, which only a generated dataset knows); empty when none is known.
+    pub fn mode_frequencies(&self, k: usize) -> Vec<f64> {
+        let modes: Vec<i64> = Vec::try_from(&self.unlabeled_mode).unwrap_or_default();
+        let mut counts = vec![0u64; k];
+        for m in modes {
+            if let Some(c) = usize::try_from(m).ok().and_then(|m| counts.get_mut(m)) {
+                *c += 1;
+            }
+        }
+        let total: u64 = counts.iter().sum();
+        if total == 0 {
+            return Vec::new();
+        }
+        counts.iter().map(|&c| c as f64 / total as f64).collect()
+    }
+
     /// [`EncoderAccuracy`] of `disc`'s Q_c head on the unlabeled demonstrations, in
     /// batches so memory stays flat.
     pub fn encoder_accuracy(&self, disc: &Discriminator, k: usize) -> EncoderAccuracy {

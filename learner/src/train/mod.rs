@@ -363,6 +363,8 @@ impl Trainer<'_> {
             .push((steps, result.nmi, result.ent, result.normalized_reward));
         let curves = self.out.join("curves.png");
         crate::eval::report::plot_curves(&curves, &cfg.method.name, &self.st.curve)?;
+        let prior = self.nets.ppo.prior_probs();
+        let demo_mode_freq = self.expert.mode_frequencies(k);
         let summary = Summary {
             method: cfg.method.name.clone(),
             env: cfg.env.name.clone(),
@@ -376,7 +378,9 @@ impl Trainer<'_> {
             total_seconds: self.started.elapsed().as_secs_f64(),
             env_steps_per_second: steps as f64 / wall.max(1e-9),
             seconds_per_iteration: self.st.phases.mean(done),
-            prior: self.nets.ppo.prior_probs(),
+            prior: prior.clone(),
+            prior_tv: records::total_variation(&prior, &demo_mode_freq),
+            demo_mode_freq,
             classifier_accuracy: self.reference.classifier_accuracy,
             encoder_accuracy: self.expert.encoder_accuracy(&self.nets.disc, k),
             eval: result,

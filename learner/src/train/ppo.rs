@@ -373,6 +373,22 @@ impl PpoLearner {
         self.prior_opt.step();
     }
 
+    /// One step of the p(c) logits toward Q_c's mean label prediction on a batch of
+    /// unlabeled demonstrations (`expert_qc_logits`, not moved by this step): the
+    /// minimum over p(c) of KL(mean Q_c || p(c)), L_RIM's second term (Eq. 8-9).
+    pub fn prior_follow_step(&mut self, expert_qc_logits: &Tensor) {
+        let marginal = tch::no_grad(|| {
+            expert_qc_logits
+                .softmax(-1, Kind::Float)
+                .mean_dim(0, false, Kind::Float)
+        });
+        let log_p = self.prior_logits.log_softmax(-1, Kind::Float);
+        let loss = -(marginal * log_p).sum(Kind::Float);
+        self.prior_opt.zero_grad();
+        loss.backward();
+        self.prior_opt.step();
+    }
+
     /// p(c) as probabilities.
     pub fn prior_probs(&self) -> Vec<f32> {
         tch::no_grad(|| {
@@ -526,6 +542,32 @@ mod tests {
     #[test]
     fn a_fixed_uniform_prior_is_never_updated() {
         assert_eq!(prior_after_update(LatentPrior::Uniform), vec![0.0; 3]);
+    }
+
+    #[test]
+    fn p_of_c_follows_the_encoders_label_marginal() {
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let pvs = nn::VarStore::new(tch::Device::Cpu);
+        let cfg = PpoConfig {
+            prior_lr: 0.05,
+            ..PpoConfig::default()
+        };
+        let mut l = PpoLearner::new(&vs, &pvs, 5, 1, 3, &cfg, LatentPrior::Gumbel, 0.1).unwrap();
+        // Q_c's predictions on four demonstrations: mean (0.7, 0.25, 0.05).
+        let probs = tensor_2d(
+            &[
+                0.9, 0.05, 0.05, 0.9, 0.05, 0.05, 0.5, 0.45, 0.05, 0.5, 0.45, 0.05,
+            ],
+            3,
+        );
+        let qc_logits = probs.log();
+        for _ in 0..600 {
+            l.prior_follow_step(&qc_logits);
+        }
+        let p = l.prior_probs();
+        for (got, want) in p.iter().zip([0.7f32, 0.25, 0.05]) {
+            assert!((got - want).abs() < 0.01, "{p:?}");
+        }
     }
 
     #[test]

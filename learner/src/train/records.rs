@@ -91,6 +91,11 @@ pub struct Summary {
     pub seconds_per_iteration: PhaseSeconds,
     /// Learned p(c).
     pub prior: Vec<f32>,
+    /// The unlabeled demonstrations' true mode frequencies (empty when unknown).
+    pub demo_mode_freq: Vec<f64>,
+    /// Total variation distance between p(c) and `demo_mode_freq` (Sec. 3.2: p(c)
+    /// should learn the demonstrations' imbalance); null when the modes are unknown.
+    pub prior_tv: Option<f64>,
     /// Behaviour classifier's held-out accuracy on expert data.
     pub classifier_accuracy: f64,
     /// Q_c's accuracy on the unlabeled expert data against the true modes (paper
@@ -100,6 +105,18 @@ pub struct Summary {
     pub eval: crate::eval::EvalResult,
     /// Whether the run was stopped early (Ctrl-C).
     pub interrupted: bool,
+}
+
+/// Total variation distance `0.5 * sum |p - q|` between two distributions of the same
+/// length; `None` when `q` is empty or the lengths differ.
+pub fn total_variation(p: &[f32], q: &[f64]) -> Option<f64> {
+    (!q.is_empty() && p.len() == q.len()).then(|| {
+        0.5 * p
+            .iter()
+            .zip(q)
+            .map(|(&a, b)| (f64::from(a) - b).abs())
+            .sum::<f64>()
+    })
 }
 
 /// Accuracy of `argmax Q_c(s, a)` against the true mode on expert data.
@@ -234,4 +251,17 @@ pub fn truncate_metrics(path: &Path, next: usize) -> Result<()> {
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     ess_envs::write_atomic(path, bytes)
         .map_err(|(p, e)| anyhow::Error::new(e).context(format!("writing {}", p.display())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::total_variation;
+
+    #[test]
+    fn total_variation_is_half_the_l1_distance() {
+        let tv = total_variation(&[0.25, 0.25, 0.25, 0.25], &[0.495, 0.495, 0.005, 0.005]);
+        assert!((tv.unwrap() - 0.49).abs() < 1e-6, "{tv:?}");
+        assert_eq!(total_variation(&[0.5, 0.5], &[]), None);
+        assert_eq!(total_variation(&[0.5, 0.5], &[1.0, 0.0, 0.0]), None);
+    }
 }

@@ -12,7 +12,7 @@ use anyhow::{Context, Result, bail};
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::make_env;
 use ess_proto::CheckedConfig;
-use ess_proto::config::ActorTransport;
+use ess_proto::config::{ActorTransport, LatentPrior, RolloutCodes};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::io::BufWriter;
@@ -74,7 +74,12 @@ impl Nets {
             d.act,
             d.codes,
             &cfg.ppo,
-            m.prior,
+            // With uniform rollouts the codes are plain inputs to PPO: p(c) learns
+            // from Q_c's label marginal instead of through the surrogate.
+            match m.rollout_codes {
+                RolloutCodes::Prior => m.prior,
+                RolloutCodes::Uniform => LatentPrior::Uniform,
+            },
             m.gumbel_tau,
         )?;
         let disc = Discriminator::new(

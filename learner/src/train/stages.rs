@@ -11,7 +11,7 @@ use crate::train::ppo::{PpoBatch, rollout_gae};
 use anyhow::{Context, Result, bail};
 use ess_actor::{EvalEpisode, LocalEval, PolicyWeights, RolloutSource};
 use ess_proto::Chunk;
-use ess_proto::config::LatentPrior;
+use ess_proto::config::{LatentPrior, RolloutCodes};
 use std::sync::Arc;
 use std::time::Instant;
 use tch::{Kind, Tensor};
@@ -32,17 +32,42 @@ fn scalar(t: &Tensor) -> f64 {
 }
 
 impl Trainer<'_> {
-    /// The current policy as the actors run it, tagged `version`.
+    /// The current policy as the actors run it, tagged `version`, with the logits the
+    /// actors draw codes from: p(c)'s, or zeros under `method.rollout_codes =
+    /// "uniform"`.
     pub fn weights(&self, version: u64) -> Result<PolicyWeights> {
         let n = &self.norm;
         let p = &self.nets.ppo;
-        Ok(export_policy(
-            &p.policy,
-            &p.prior_logits,
-            &n.mean,
-            &n.std,
-            version,
-        )?)
+        let logits = match self.cfg.method.rollout_codes {
+            RolloutCodes::Prior => p.prior_logits.shallow_clone(),
+            RolloutCodes::Uniform => p.prior_logits.zeros_like(),
+        };
+        Ok(export_policy(&p.policy, &logits, &n.mean, &n.std, version)?)
+    }
+
+    /// The probabilities the rollouts' codes were drawn with.
+    fn rollout_code_probs(&self) -> Vec<f32> {
+        match self.cfg.method.rollout_codes {
+            RolloutCodes::Prior => self.nets.ppo.prior_probs(),
+            RolloutCodes::Uniform => vec![1.0 / self.dims.codes as f32; self.dims.codes],
+        }
+    }
+
+    /// With `method.disc_code_reweight`, the code proportions D's generated batch is
+    /// drawn at instead of the rollout's: the demos' mode marginal as p(c) holds it
+    /// under uniform rollouts, else Q_c's running estimate of it.
+    fn disc_code_target(&self) -> Option<Vec<f64>> {
+        let m = &self.cfg.method;
+        if !m.disc_code_reweight {
+            return None;
+        }
+        Some(match m.rollout_codes {
+            RolloutCodes::Uniform => {
+                let p = self.nets.ppo.prior_probs();
+                p.iter().map(|&p| f64::from(p)).collect()
+            }
+            RolloutCodes::Prior => self.st.qc_marginal.clone(),
+        })
     }
 
     /// Rolls out `run.rollout_steps` transitions under the current policy (version
@@ -77,13 +102,15 @@ impl Trainer<'_> {
         let cfg = self.cfg;
         let m = &cfg.method;
         let w = DiscWeights::at(m, it);
-        let prior_from_rim = m.prior == LatentPrior::Gumbel && m.rim_prior_grad;
+        let uniform_rollouts = m.rollout_codes == RolloutCodes::Uniform;
+        let prior_from_rim =
+            m.prior == LatentPrior::Gumbel && m.rim_prior_grad && !uniform_rollouts;
         let batch = cfg.disc.batch as i64;
         let (n_gen, n_exp) = (r.len() as i64, self.expert.unlabeled.size()[0]);
         let n_lab = self.expert.labeled.size()[0];
-        let draw = m
-            .disc_code_reweight
-            .then(|| CodeReweight::new(&r.all.code, self.dims.codes, &self.st.qc_marginal));
+        let draw = self
+            .disc_code_target()
+            .map(|t| CodeReweight::new(&r.all.code, self.dims.codes, &t));
         let no_rows = Tensor::zeros([0], (Kind::Int64, tch::Device::Cpu));
         for step in 0..cfg.disc.steps {
             let rng = &mut self.st.rng;
@@ -121,6 +148,9 @@ impl Trainer<'_> {
             let terms = disc_objective(&self.nets.disc, &b, &w, &log_prior);
             if m.disc_code_reweight {
                 self.track_qc_marginal(&terms.expert_qc_logits);
+            }
+            if uniform_rollouts {
+                self.nets.ppo.prior_follow_step(&terms.expert_qc_logits);
             }
             let n = &mut self.nets;
             n.dopt.zero_grad();
@@ -162,8 +192,8 @@ impl Trainer<'_> {
     ) -> Result<Rewards> {
         let cfg = self.cfg;
         let m = &cfg.method;
+        let rw = RewardWeights::at(m, it, &self.rollout_code_probs());
         let ppo = &mut self.nets.ppo;
-        let rw = RewardWeights::at(m, it, &ppo.prior_probs());
         let next_n = self.norm.apply(&r.all.next_obs);
         let eps = r.eps.view([-1, 1]);
         let n = r.len() as i64;
