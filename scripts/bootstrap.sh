@@ -4,8 +4,23 @@
 #   - libtorch from PyPI's torch==2.11.0 (what tch =0.24.0 links against), plus the two
 #     CUDA runtime libraries libtorch_cpu.so needs even on CPU;
 #   - MuJoCo 3.17.0's shared library from PyPI's mujoco==3.17.0 wheel (for mujoco-rs).
+#   - with --slurm only: Debian's slurm-wlm and munge (apt; root or sudo), for
+#     `ess experiment --slurm` on this machine and bench/slurm_grid.sh. Nothing else
+#     needs them.
 # Safe to run any number of times: each step is skipped when its result is in place.
 set -euo pipefail
+
+if [ "${1:-}" = "--slurm" ]; then
+  if command -v slurmctld >/dev/null 2>&1 && command -v munged >/dev/null 2>&1; then
+    printf 'bootstrap: slurm-wlm and munge already installed\n' >&2
+    exit 0
+  fi
+  sudo=""
+  [ "$(id -u)" = 0 ] || sudo="sudo"
+  printf 'bootstrap: installing slurm-wlm and munge (apt)\n' >&2
+  $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends slurm-wlm munge
+  exit 0
+fi
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 deps="$root/.deps"

@@ -27,6 +27,7 @@
 pub mod actors;
 pub mod control;
 pub mod eval;
+pub mod experiment;
 pub mod experts;
 pub mod malloc;
 pub mod objective;

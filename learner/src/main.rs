@@ -10,8 +10,8 @@ mod cli;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use cli::{
-    InputError, demos::DemosCmd, experts::ExpertsCmd, input_err, job::JobArgs, replay::ReplayArgs,
-    runtime, serve::ServeArgs, train::TrainArgs,
+    InputError, demos::DemosCmd, experiment::ExperimentArgs, experts::ExpertsCmd, input_err,
+    job::JobArgs, replay::ReplayArgs, runtime, serve::ServeArgs, train::TrainArgs,
 };
 use ess_learner::presets::PRESETS;
 use std::path::PathBuf;
@@ -41,6 +41,9 @@ enum Cmd {
         #[command(subcommand)]
         cmd: ExpertsCmd,
     },
+    /// Run a grid of trainings (presets x tasks x variants x seeds) from a TOML spec
+    /// here or on Slurm, and report it as the paper's tables and figures.
+    Experiment(ExperimentArgs),
     /// List the method presets.
     Presets,
     /// Run the job server: a gRPC daemon that owns training jobs on this machine.
@@ -75,6 +78,7 @@ fn main() {
         Cmd::Demos { cmd } => cli::demos::demos(cmd),
         Cmd::Experts { cmd } => cli::experts::experts(cmd),
         Cmd::Replay(a) => cli::replay::replay(a),
+        Cmd::Experiment(a) => cli::experiment::experiment(a),
         Cmd::Serve(a) => runtime().and_then(|rt| rt.block_on(cli::serve::serve(a))),
         Cmd::Job(a) => runtime().and_then(|rt| rt.block_on(cli::job::job(a))),
         Cmd::Report { runs } => runs

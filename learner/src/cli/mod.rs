@@ -2,6 +2,7 @@
 //! and their layers, input errors (exit 2), the stop flag and the async runtime.
 
 pub mod demos;
+pub mod experiment;
 pub mod experts;
 pub mod job;
 pub mod replay;

@@ -30,7 +30,8 @@ mod spec;
 
 pub use record::{Error, State};
 use record::{JobRecord, io_err, now_ms, persist};
-use spec::{has_checkpoint, log_tail, validate};
+pub use spec::has_checkpoint;
+use spec::{log_tail, validate};
 
 use crate::progress::ProgressEvent;
 use ess_proto::pb;
@@ -173,8 +174,32 @@ impl Manager {
         self.inner.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Validates and queues a job.
+    /// Validates and queues a job (id `job-<n>`).
     pub async fn submit(self: &Arc<Self>, spec: pb::JobSpec) -> Result<pb::Job, Error> {
+        self.submit_as(spec, None).await
+    }
+
+    /// Validates and queues a job under `id` when given (`ess experiment` names each
+    /// cell's job, so that its run directory `jobs/<id>/` is found again); the id must
+    /// be new and a plain file name.
+    pub async fn submit_as(
+        self: &Arc<Self>,
+        spec: pb::JobSpec,
+        id: Option<&str>,
+    ) -> Result<pb::Job, Error> {
+        if let Some(id) = id {
+            let plain = !id.is_empty()
+                && id
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c))
+                && !id.starts_with('.');
+            if !plain {
+                return Err(Error::InvalidArgument {
+                    field: "id".into(),
+                    message: format!("`{id}` is not a plain file name"),
+                });
+            }
+        }
         if self.lock().shutting_down {
             return Err(Error::ShuttingDown);
         }
@@ -193,7 +218,13 @@ impl Manager {
         }
         let seq = inner.next_seq;
         inner.next_seq += 1;
-        let id = format!("job-{seq}");
+        let id = id.map_or_else(|| format!("job-{seq}"), str::to_string);
+        if inner.jobs.contains_key(&id) {
+            return Err(Error::InvalidArgument {
+                field: "id".into(),
+                message: format!("`{id}` is taken"),
+            });
+        }
         let run_dir = self.cfg.data_dir.join("jobs").join(&id);
         std::fs::create_dir_all(&run_dir)
             .map_err(io_err(format!("creating {}", run_dir.display())))?;

@@ -7,7 +7,7 @@ use ess_proto::pb;
 use std::path::Path;
 
 /// Whether `run_dir` holds a complete checkpoint to resume from.
-pub(super) fn has_checkpoint(run_dir: &Path) -> bool {
+pub fn has_checkpoint(run_dir: &Path) -> bool {
     std::fs::read_dir(run_dir.join("checkpoints"))
         .map(|d| {
             d.flatten().any(|e| {
