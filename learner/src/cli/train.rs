@@ -210,13 +210,19 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         "normalized reward  {:.3}   (random 0, expert 1)",
         s.normalized_reward
     );
+    let three = |v: &mut dyn Iterator<Item = f64>| {
+        v.map(|p| format!("{p:.3}")).collect::<Vec<_>>().join(" ")
+    };
+    let demos = match s.prior_tv {
+        Some(tv) => format!(
+            "   (demos' modes {}: total variation {tv:.3})",
+            three(&mut s.demo_mode_freq.iter().copied())
+        ),
+        None => String::new(),
+    };
     println!(
-        "p(c)               {}",
-        s.prior
-            .iter()
-            .map(|p| format!("{p:.3}"))
-            .collect::<Vec<_>>()
-            .join(" ")
+        "p(c)               {}{demos}",
+        three(&mut s.prior.iter().map(|&p| f64::from(p)))
     );
     println!(
         "Q_c accuracy       {:.3} balanced, {:.3} overall on the unlabeled demos (per mode {})",
