@@ -4,6 +4,7 @@
 //! `metrics.csv`, however the cell was run (job queue or Slurm).
 
 use super::spec::{Axis, Cell, ExperimentSpec, Figure};
+use crate::eval::metrics::mean_std;
 use crate::eval::plot::{PlotError, draw_curves};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -28,18 +29,6 @@ pub fn metric(summary: &Value, path: &str) -> Option<f64> {
     path.split('.')
         .try_fold(summary, |v, k| v.get(k))
         .and_then(Value::as_f64)
-}
-
-/// Mean and sample standard deviation (0 for one value).
-fn mean_std(xs: &[f64]) -> (f64, f64) {
-    let n = xs.len() as f64;
-    let mean = xs.iter().sum::<f64>() / n;
-    let var = if xs.len() > 1 {
-        xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)
-    } else {
-        0.0
-    };
-    (mean, var.sqrt())
 }
 
 /// The distinct values of `axis` in the spec's order.
