@@ -553,6 +553,17 @@ impl Manager {
         self.schedule(&mut inner);
     }
 
+    /// Resolves once no job process is running.
+    async fn all_ended(&self) {
+        loop {
+            let ended = self.ended.notified();
+            if self.lock().running == 0 {
+                return;
+            }
+            ended.await;
+        }
+    }
+
     /// Stops taking work, stops every running job gracefully (SIGTERM; SIGKILL after
     /// the grace period), and ends open watch streams. Queued jobs stay queued for the
     /// next server on this data dir.
@@ -582,16 +593,7 @@ impl Manager {
         if !pids.is_empty() {
             tracing::info!(jobs = pids.len(), "stopping running jobs");
         }
-        let wait_all = async {
-            loop {
-                let ended = self.ended.notified();
-                if self.lock().running == 0 {
-                    return;
-                }
-                ended.await;
-            }
-        };
-        if tokio::time::timeout(self.cfg.stop_grace, wait_all)
+        if tokio::time::timeout(self.cfg.stop_grace, self.all_ended())
             .await
             .is_err()
         {
@@ -603,16 +605,7 @@ impl Manager {
                     nix::sys::signal::Signal::SIGKILL,
                 );
             }
-            let wait_all = async {
-                loop {
-                    let ended = self.ended.notified();
-                    if self.lock().running == 0 {
-                        return;
-                    }
-                    ended.await;
-                }
-            };
-            let _ = tokio::time::timeout(Duration::from_secs(10), wait_all).await;
+            let _ = tokio::time::timeout(Duration::from_secs(10), self.all_ended()).await;
         }
         self.closing.send_replace(true);
     }
