@@ -175,6 +175,15 @@ pub fn replay_path(expert: &Path) -> PathBuf {
     beside(expert, ".replay.safetensors")
 }
 
+/// Mean return and mean length of `(return, length)` episodes; `None` for none.
+pub(crate) fn episode_means(episodes: &[(f64, usize)]) -> (Option<f64>, Option<f64>) {
+    let n = episodes.len() as f64;
+    let mean = |f: fn(&(f64, usize)) -> f64| {
+        (!episodes.is_empty()).then(|| episodes.iter().map(f).sum::<f64>() / n)
+    };
+    (mean(|e| e.0), mean(|e| e.1 as f64))
+}
+
 /// Episode returns ending in `chunks`, continuing each stream's open episode in `open`.
 fn finished_episodes(chunks: &[Chunk], open: &mut Vec<(f64, usize)>) -> Vec<(f64, usize)> {
     if open.len() < chunks.len() {
@@ -368,10 +377,7 @@ pub fn train_expert(
         let st = ppo.update(&batch, &mut rng);
         // The normaliser learns from this rollout only after the update used it.
         stats.update(&all.obs);
-        let mean_return = (!episodes.is_empty())
-            .then(|| episodes.iter().map(|e| e.0).sum::<f64>() / episodes.len() as f64);
-        let mean_length = (!episodes.is_empty())
-            .then(|| episodes.iter().map(|e| e.1 as f64).sum::<f64>() / episodes.len() as f64);
+        let (mean_return, mean_length) = episode_means(&episodes);
         let report = ExpertIteration {
             iteration: it,
             env_steps,

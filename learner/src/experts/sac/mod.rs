@@ -591,10 +591,7 @@ pub fn train_expert_sac(
         }
         let finished = env_steps >= cfg.steps || shutdown.load(Ordering::Relaxed);
         if env_steps.is_multiple_of(log_every) || finished {
-            let n = done_eps.len();
-            let mean_return = (n > 0).then(|| done_eps.iter().map(|e| e.0).sum::<f64>() / n as f64);
-            let mean_length =
-                (n > 0).then(|| done_eps.iter().map(|e| e.1 as f64).sum::<f64>() / n as f64);
+            let (mean_return, mean_length) = super::episode_means(&done_eps);
             done_eps.clear();
             let report = ExpertIteration {
                 iteration: it,
