@@ -144,6 +144,14 @@ pub enum EnvError {
         /// MuJoCo's message, or what the model lacks.
         reason: String,
     },
+    /// A task file ([`crate::task`]) is unreadable, malformed or does not fit its model.
+    #[error("task file {}: {reason}", path.display())]
+    Task {
+        /// The task file.
+        path: std::path::PathBuf,
+        /// What is wrong, naming the key or piece (MuJoCo's message for the MJCF).
+        reason: String,
+    },
     /// The physics simulation raised a warning (typically a diverging, unstable state).
     #[error("simulation failed: {reason}")]
     Simulation {
@@ -178,6 +186,12 @@ pub trait Env: Send {
     /// shaping that scoring must not see.
     fn task_rewards(&self, out: &mut [f32]) {
         self.mode_rewards(out);
+    }
+
+    /// Whether [`Env::mode_rewards`] scores the modes (every built-in env does; a task
+    /// file only with `[[modes]]`). Without it normalized reward does not apply.
+    fn has_mode_rewards(&self) -> bool {
+        true
     }
 
     /// Forward velocity of the body in m/s after the last step, for locomotion envs
@@ -226,6 +240,14 @@ pub fn make_env_in(
     n_modes: usize,
     experts_dir: &std::path::Path,
 ) -> Result<Box<dyn ScriptedExpert>, EnvError> {
+    if crate::task::task_path(name).is_some() {
+        return Err(EnvError::NoScriptedExpert {
+            name: name.to_owned(),
+            reason: "a task file has no expert; train it from imported demonstrations \
+                     (`demos.path`, see `ess demos import`)"
+                .into(),
+        });
+    }
     match name {
         "pusher" | "walker2d" | "humanoid" => {
             let plain = make_plain_env(name, n_modes)?;
@@ -259,10 +281,13 @@ pub fn make_env_in(
 }
 
 /// Builds any known env by name as a plain [`Env`] (no expert), with its default
-/// configuration: traj2d (exactly 4 modes), reacher (2 to 12), pusher (2 to 6 goals),
+/// configuration, or a user's task file named `task:PATH` ([`crate::task`]): traj2d (exactly 4 modes), reacher (2 to 12), pusher (2 to 6 goals),
 /// walker2d and humanoid (exactly 3: forward, backward, balance). A bad `n_modes` is
 /// [`EnvError::BadParam`] naming it; an unknown name is [`EnvError::UnknownEnv`].
 pub fn make_plain_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
+    if let Some(path) = crate::task::task_path(name) {
+        return Ok(Box::new(crate::task::TaskEnv::load(path, n_modes)?));
+    }
     match name {
         "pusher" => Ok(Box::new(Pusher::new(PusherConfig {
             n_modes,

@@ -19,6 +19,8 @@
 //!   (its experts are PPO-trained).
 //! - [`humanoid`]: Humanoid (Sec. 4, "Task setup (5)") on MuJoCo, Gymnasium
 //!   Humanoid-v5's model and spaces with the same three modes; no scripted expert.
+//! - [`task`]: a task from the user's own MJCF model, described by a TOML task file
+//!   (observation pieces, actions, episode, optional per-mode rewards).
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
@@ -34,6 +36,7 @@ pub mod locomotion;
 mod mujoco;
 pub mod pusher;
 pub mod reacher;
+pub mod task;
 pub mod traj2d;
 pub mod walker2d;
 
@@ -48,6 +51,7 @@ pub use humanoid::{Humanoid, HumanoidConfig};
 pub use locomotion::LocoMode;
 pub use pusher::{Pusher, PusherConfig};
 pub use reacher::{Reacher, ReacherConfig};
+pub use task::{TASK_PREFIX, TaskEnv, TaskFile};
 pub use traj2d::{Traj2D, Traj2DConfig};
 pub use walker2d::{Walker2d, Walker2dConfig};
 

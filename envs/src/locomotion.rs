@@ -27,7 +27,7 @@
 //! forward and to `r_0` when moving backward): the balance reward is only comparable
 //! between policies, not between modes.
 
-use mujoco_rs::prelude::MjtObjBase;
+use mujoco_rs::prelude::{MjModel, MjtObjBase};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -265,16 +265,30 @@ impl Sim {
                 return Err(model_error(format!("no body named {name:?}")));
             }
         }
+        Self::from_model(model, frame_skip, max_steps)
+    }
+
+    /// A simulation of any `model` whose actuators all have a finite `ctrlrange`
+    /// (actions in `[-1, 1]` are scaled onto it), e.g. a user's task file.
+    pub fn from_model(
+        model: MjModel,
+        frame_skip: usize,
+        max_steps: usize,
+    ) -> Result<Self, EnvError> {
         let limited = model.actuator_ctrllimited();
         let ranges = model.actuator_ctrlrange();
-        let mut ctrl_centre = Vec::with_capacity(shape.nu);
-        let mut ctrl_half = Vec::with_capacity(shape.nu);
+        let mut ctrl_centre = Vec::with_capacity(ranges.len());
+        let mut ctrl_half = Vec::with_capacity(ranges.len());
         for (i, (lim, r)) in limited.iter().zip(ranges).enumerate() {
             let ok = *lim && r[0].is_finite() && r[1].is_finite() && r[0] < r[1];
             if !ok {
+                let name = model
+                    .id_to_name(MjtObjBase::mjOBJ_ACTUATOR, i)
+                    .map(|n| format!(" ({n:?})"))
+                    .unwrap_or_default();
                 return Err(model_error(format!(
-                    "actuator {i} needs a finite ctrlrange with lo < hi (actions in [-1, 1] \
-                     are scaled onto it)"
+                    "actuator {i}{name} needs a finite ctrlrange with lo < hi (actions in \
+                     [-1, 1] are scaled onto it)"
                 )));
             }
             ctrl_centre.push(0.5 * (r[0] + r[1]));
@@ -293,6 +307,11 @@ impl Sim {
             started: false,
             done: false,
         })
+    }
+
+    /// Number of actuators (the action length).
+    pub fn n_actuators(&self) -> usize {
+        self.ctrl_centre.len()
     }
 
     /// Seconds of simulated time per env step (`timestep * frame_skip`).
