@@ -30,6 +30,9 @@
 //! | `S.episode`    | I32   | `[n]`          |
 //! | `S.reward`     | F32   | `[n]`          |
 //!
+//! `unlabeled.mode` is -1 where nobody knows the mode (an episode imported without a
+//! label, [`UNKNOWN_MODE`] in memory); labels are always known.
+//!
 //! Header metadata: `format = "ess-demos"`, `format_version = "1"`, `meta` = the
 //! [`DemoMeta`] as JSON. [`Demos::load`] validates all of it and names the offending
 //! tensor, row, field or value (and the file) in its error.
@@ -49,6 +52,9 @@ use crate::env::{EnvError, ScriptedExpert, make_env};
 pub const FORMAT: &str = "ess-demos";
 /// The only supported `format_version`.
 pub const FORMAT_VERSION: u32 = 1;
+/// The in-memory mode of an unlabeled transition whose mode nobody knows (an imported
+/// episode without a label); stored as `-1` in the file, only in the unlabeled split.
+pub const UNKNOWN_MODE: u32 = u32::MAX;
 /// Split names, in file order.
 const SPLITS: [&str; 2] = ["unlabeled", "labeled"];
 
@@ -189,6 +195,25 @@ pub struct DemoMeta {
     pub labeled_steps_per_mode: Vec<usize>,
     /// Program that wrote the file, `"ess <version>"`.
     pub generator: String,
+    /// Where imported demonstrations came from (`ess demos import`); absent for
+    /// generated ones.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<DemoSource>,
+}
+
+/// Provenance of an imported dataset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoSource {
+    /// Source format: `minari` or `npz`.
+    pub format: String,
+    /// The source path as given.
+    pub path: String,
+    /// SHA-256 of the source's data file, hex.
+    pub sha256: String,
+    /// Episodes read from the source.
+    pub episodes: usize,
+    /// The import's options (label ratio, label field or file, seed, ...).
+    pub options: std::collections::BTreeMap<String, String>,
 }
 
 /// A demonstration dataset.
@@ -540,6 +565,7 @@ pub fn generate_demos(spec: &DemoSpec) -> Result<Demos, DemoError> {
         unlabeled_steps_per_mode: unlabeled.steps_per_mode(n_modes),
         labeled_steps_per_mode: labeled.steps_per_mode(n_modes),
         generator: format!("ess {}", env!("CARGO_PKG_VERSION")),
+        source: None,
     };
     tracing::info!(
         env = %spec.env,
@@ -561,9 +587,13 @@ fn f32_bytes(v: &[f32]) -> Vec<u8> {
 
 /// Encodes `u32` values as little-endian I32 (values above `i32::MAX` saturate, which
 /// the loader then rejects as out of range).
+/// `v` as I32 bytes; [`UNKNOWN_MODE`] is written as -1.
 fn i32_bytes(v: &[u32]) -> Vec<u8> {
     v.iter()
-        .flat_map(|&x| i32::try_from(x).unwrap_or(i32::MAX).to_le_bytes())
+        .flat_map(|&x| match x {
+            UNKNOWN_MODE => (-1i32).to_le_bytes(),
+            _ => i32::try_from(x).unwrap_or(i32::MAX).to_le_bytes(),
+        })
         .collect()
 }
 
@@ -890,6 +920,7 @@ fn read_split(
     for (row, v) in decode_i32(mode_bytes).into_iter().enumerate() {
         match u32::try_from(v) {
             Ok(m) if (m as usize) < meta.n_modes => mode.push(m),
+            Err(_) if v == -1 && split == SPLITS[0] => mode.push(UNKNOWN_MODE),
             _ => {
                 return Err(DemoError::ModeOutOfRange {
                     path: path.to_owned(),
@@ -939,6 +970,42 @@ mod tests {
 
     fn small_demos() -> Demos {
         generate_demos(&spec(4, 0.1)).expect("generate")
+    }
+
+    #[test]
+    fn unknown_modes_round_trip_in_the_unlabeled_split_only() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("u.safetensors");
+        let mut d = small_demos();
+        // Episode 0 of the unlabeled split loses its mode, as an unlabeled import would.
+        let lost: Vec<usize> = (0..d.unlabeled.len())
+            .filter(|&i| d.unlabeled.episode[i] == 0)
+            .collect();
+        for &i in &lost {
+            d.unlabeled.mode[i] = UNKNOWN_MODE;
+        }
+        d.meta.unlabeled_episodes_per_mode = d.unlabeled.episodes_per_mode(4);
+        d.meta.unlabeled_steps_per_mode = d.unlabeled.steps_per_mode(4);
+        d.meta.source = Some(DemoSource {
+            format: "npz".into(),
+            path: "x.npz".into(),
+            sha256: "0".repeat(64),
+            episodes: 3,
+            options: [("label_ratio".to_string(), "0.1".to_string())].into(),
+        });
+        d.save(&path).expect("save");
+        let back = Demos::load(&path).expect("load");
+        assert_eq!(back, d);
+        assert_eq!(back.unlabeled.mode[lost[0]], UNKNOWN_MODE);
+        // A label of -1 is refused: labels are always known.
+        d.labeled.mode[0] = UNKNOWN_MODE;
+        d.meta.labeled_steps_per_mode = d.labeled.steps_per_mode(4);
+        d.save(&path).expect("save");
+        let err = Demos::load(&path).expect_err("unknown label");
+        assert!(
+            err.to_string().contains("labeled.mode") && err.to_string().contains("mode -1"),
+            "{err}"
+        );
     }
 
     fn close(a: &[f64], b: &[f64]) -> bool {
@@ -1404,6 +1471,7 @@ mod tests {
                             seed,
                             unlabeled_episodes_per_mode: unlabeled.episodes_per_mode(n_modes),
                             unlabeled_steps_per_mode: unlabeled.steps_per_mode(n_modes),
+                            source: None,
                             labeled_steps_per_mode: labeled.steps_per_mode(n_modes),
                             generator: "ess test".into(),
                         };
