@@ -4,6 +4,8 @@
 #   - libtorch from PyPI's torch==2.11.0 (what tch =0.24.0 links against), plus the two
 #     CUDA runtime libraries libtorch_cpu.so needs even on CPU;
 #   - MuJoCo 3.17.0's shared library from PyPI's mujoco==3.17.0 wheel (for mujoco-rs).
+#   - CMake from PyPI's cmake wheel when none is on PATH: hdf5-metno builds a static
+#     HDF5 from source with it (for `ess demos import` of Minari datasets).
 #   - with --slurm only: Debian's slurm-wlm and munge (apt; root or sudo), for
 #     `ess experiment --slurm` on this machine and bench/slurm_grid.sh. Nothing else
 #     needs them.
@@ -28,6 +30,8 @@ py_dir="$deps/py"
 mj_dir="$deps/mujoco"
 TORCH_VERSION=2.11.0
 MUJOCO_VERSION=3.17.0
+CMAKE_VERSION=4.4.5
+cmake_dir="$deps/cmake"
 PY=${PYTHON:-python3}
 
 say() { printf 'bootstrap: %s\n' "$*" >&2; }
@@ -81,6 +85,18 @@ else
   say "MuJoCo $MUJOCO_VERSION already in $mj_dir"
 fi
 
+# --- CMake (static HDF5 for the Minari import) --------------------------------------
+if command -v cmake >/dev/null 2>&1; then
+  say "cmake already on PATH ($(command -v cmake))"
+elif [ ! -x "$cmake_dir/cmake/data/bin/cmake" ]; then
+  say "installing cmake==$CMAKE_VERSION (PyPI wheel) into $cmake_dir"
+  "$PY" -m pip install --quiet --disable-pip-version-check --no-deps --no-compile \
+    --target "$cmake_dir" --upgrade "cmake==$CMAKE_VERSION"
+  [ -x "$cmake_dir/cmake/data/bin/cmake" ] || die "cmake wheel installed but $cmake_dir/cmake/data/bin/cmake is missing"
+else
+  say "cmake already in $cmake_dir"
+fi
+
 # --- env file -------------------------------------------------------------------------
 torch_dir="$py_dir/torch"
 cu_dir="$py_dir/nvidia/cu13/lib"
@@ -90,6 +106,7 @@ export LIBTORCH="$torch_dir"
 export LIBTORCH_CXX11_ABI=1
 export MUJOCO_DYNAMIC_LINK_DIR="$mj_dir"
 export LD_LIBRARY_PATH="$torch_dir/lib:$cu_dir:$mj_dir\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}"
+export PATH="$cmake_dir/cmake/data/bin:\$PATH"
 ENVEOF
 mv "$deps/env.sh.part" "$deps/env.sh"
 say "ready: source $deps/env.sh"

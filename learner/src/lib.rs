@@ -16,6 +16,7 @@
 //! | [`eval`] | the paper's evaluation: behaviour [`eval::classifier`], NMI / ENT ([`eval::metrics`]), normalised reward; reports, Table 1 view ([`eval::table`]) and PNG figures ([`eval::plot`], [`eval::report`]) |
 //! | [`runlog`] | the MCAP run log `run.mcap` (writer, truncation-tolerant reader) and [`runlog::replay`] (`ess replay`) |
 //! | [`control`] | the control plane: [`control::jobs`] (the job manager), [`control::serve`] (`ess serve`, gRPC), [`control::client`] (`ess job ...`) |
+//! | [`import`] | `ess demos import`: Minari datasets ([`import::minari`]) and NumPy `.npz` ([`import::npz`]) into the demonstration file, labels, label ratio and provenance |
 //! | [`experts`] | per-mode expert policies: PPO, and SAC ([`experts::sac`]) where PPO falls short |
 //! | [`actors`] | the launcher and supervisor of `ess-actor` processes over iceoryx2 ([`actors::ShmActors`]) |
 //!
@@ -29,6 +30,7 @@ pub mod control;
 pub mod eval;
 pub mod experiment;
 pub mod experts;
+pub mod import;
 pub mod malloc;
 pub mod objective;
 pub mod presets;
