@@ -19,7 +19,7 @@ pub mod table;
 use crate::eval::classifier::BehaviourClassifier;
 use crate::eval::metrics::{Confusion, best_assignment, ent, nmi, normalized_reward};
 use ess_actor::{EvalEpisode, EvalJob, EvalRunner, LatentSpec, PolicyWeights};
-use ess_envs::{ScriptedExpert, expert_episode};
+use ess_envs::{Env, ScriptedExpert, expert_episode};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -71,14 +71,25 @@ pub fn build_reference(
     }
     let (classifier, classifier_accuracy) =
         BehaviourClassifier::train(&rows, &labels, od + ad, k, 1500, seed)?;
-    // Random policy: uniform actions in [-1, 1].
+    let random_return = random_returns(env, episodes.max(1) * k, seed)?;
+    Ok(Reference {
+        classifier,
+        classifier_accuracy,
+        expert_return,
+        random_return,
+    })
+}
+
+/// Mean per-mode return of `n` episodes of uniform random actions in `[-1, 1]`.
+fn random_returns(env: &mut dyn Env, n: usize, seed: u64) -> anyhow::Result<Vec<f64>> {
+    let spec = env.spec().clone();
+    let (k, od, ad) = (spec.n_modes, spec.obs_dim, spec.act_dim);
     let mut random_return = vec![0.0; k];
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
     let mut obs = vec![0.0; od];
     let mut act = vec![0.0; ad];
     let mut rew = vec![0.0; k];
-    let n_random = episodes.max(1) * k;
-    for _ in 0..n_random {
+    for _ in 0..n {
         env.reset(rng.random(), &mut obs)?;
         loop {
             for a in act.iter_mut() {
@@ -95,14 +106,82 @@ pub fn build_reference(
         }
     }
     for r in random_return.iter_mut() {
-        *r /= n_random as f64;
+        *r /= n as f64;
+    }
+    Ok(random_return)
+}
+
+/// The reference of an env without experts (a task file), from its demonstrations:
+/// the behaviour classifier trains on every demonstration step whose mode is known
+/// (the labeled split, plus unlabeled episodes the source labeled); the expert return
+/// of a mode is the demonstrations' own mean episode return on episodes of that mode,
+/// the random return that of `random_episodes` random episodes per mode under the
+/// env's per-mode rewards. Without per-mode rewards both are 0 and normalized reward
+/// does not apply ([`normalized_reward`] is then 0).
+pub fn reference_from_demos(
+    env: &mut dyn Env,
+    demos: &ess_envs::Demos,
+    random_episodes: usize,
+    seed: u64,
+) -> anyhow::Result<Reference> {
+    let spec = env.spec().clone();
+    let (k, od, ad) = (spec.n_modes, spec.obs_dim, spec.act_dim);
+    let mut rows = Vec::new();
+    let mut labels = Vec::new();
+    for s in [&demos.labeled, &demos.unlabeled] {
+        for (i, &m) in s.mode.iter().enumerate() {
+            if (m as usize) < k {
+                rows.extend(classifier_rows(
+                    &s.next_obs[i * od..(i + 1) * od],
+                    &s.act[i * ad..(i + 1) * ad],
+                    od,
+                    ad,
+                ));
+                labels.push(i64::from(m));
+            }
+        }
+    }
+    let (classifier, classifier_accuracy) =
+        BehaviourClassifier::train(&rows, &labels, od + ad, k, 1500, seed)?;
+    if !env.has_mode_rewards() {
+        return Ok(Reference {
+            classifier,
+            classifier_accuracy,
+            expert_return: vec![0.0; k],
+            random_return: vec![0.0; k],
+        });
     }
     Ok(Reference {
         classifier,
         classifier_accuracy,
-        expert_return,
-        random_return,
+        expert_return: demo_returns(demos, k),
+        random_return: random_returns(env, random_episodes.max(1) * k, seed)?,
     })
+}
+
+/// Mean episode return of each mode's demonstrations (unlabeled episodes of known mode,
+/// or the labeled split's where a mode has none).
+fn demo_returns(demos: &ess_envs::Demos, k: usize) -> Vec<f64> {
+    let per_mode = |s: &ess_envs::DemoSplit| {
+        let mut sum = vec![0.0f64; k];
+        let mut eps = vec![std::collections::BTreeSet::new(); k];
+        for ((&m, &e), &r) in s.mode.iter().zip(&s.episode).zip(&s.reward) {
+            if let Some(acc) = sum.get_mut(m as usize) {
+                *acc += f64::from(r);
+                eps[m as usize].insert(e);
+            }
+        }
+        (sum, eps.iter().map(|e| e.len()).collect::<Vec<_>>())
+    };
+    let (u, ue) = per_mode(&demos.unlabeled);
+    let (l, le) = per_mode(&demos.labeled);
+    (0..k)
+        .map(|m| match (ue[m], le[m]) {
+            (0, 0) => 0.0,
+            (0, n) => l[m] / n as f64,
+            (n, _) => u[m] / n as f64,
+        })
+        .collect()
 }
 
 /// The result of one evaluation.

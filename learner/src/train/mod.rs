@@ -35,7 +35,7 @@ use crate::eval::Reference;
 use crate::runlog::RunLog;
 use anyhow::{Context, Result, anyhow};
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource};
-use ess_envs::{Demos, EnvSpec, ScriptedExpert};
+use ess_envs::{Demos, EnvSpec};
 use ess_proto::CheckedConfig;
 use ess_proto::config::Pipeline;
 use rand_chacha::ChaCha8Rng;
@@ -112,7 +112,7 @@ pub struct Trainer<'c> {
     prefetch: Option<Prefetch>,
     /// The weights the first collection of a resumed overlapped run runs under.
     resume_weights: Option<Arc<PolicyWeights>>,
-    eval_env: Box<dyn ScriptedExpert>,
+    eval_env: Box<dyn ess_envs::Env>,
     st: LoopState,
     /// Finished on every way out (drop), see [`crate::runlog`].
     runlog: RunLog,

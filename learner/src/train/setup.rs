@@ -5,12 +5,14 @@ use super::data::{Dims, ExpertData, ObsNorm, load_or_generate_demos};
 use super::records::{CSV_HEADER, truncate_metrics};
 use super::{LoopState, Progress, Trainer};
 use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
+use crate::eval::Reference;
 use crate::train::nets::{Discriminator, obs_columns};
 use crate::train::optim::Adam;
 use crate::train::ppo::PpoLearner;
 use anyhow::{Context, Result, bail};
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
-use ess_envs::make_env;
+use ess_envs::demos::UNKNOWN_MODE;
+use ess_envs::{Demos, Env, make_env, make_plain_env};
 use ess_proto::CheckedConfig;
 use ess_proto::config::{ActorTransport, LatentPrior, RolloutCodes};
 use rand::SeedableRng;
@@ -100,6 +102,39 @@ impl Nets {
     }
 }
 
+/// True when the run's env is a user's task file (`task:PATH`): it has no experts.
+fn is_task(cfg: &CheckedConfig) -> bool {
+    ess_envs::task::task_path(&cfg.env.name).is_some()
+}
+
+/// The env the actors and the evaluation step: a built-in env as `make_env` builds it
+/// (with its experts), a task file as a plain env.
+fn rollout_env(cfg: &CheckedConfig) -> Result<Box<dyn Env>> {
+    let (name, k) = (&cfg.env.name, cfg.env.n_modes);
+    Ok(if is_task(cfg) {
+        make_plain_env(name, k)?
+    } else {
+        make_env(name, k)?
+    })
+}
+
+/// What evaluation scores against: a built-in env's experts roll the reference; a task
+/// file has none, so its demonstrations are the reference.
+fn reference(cfg: &CheckedConfig, eval_env: &mut dyn Env, demos: &Demos) -> Result<Reference> {
+    let (episodes, seed) = (cfg.run.reference_episodes.max(1), cfg.demos.seed ^ 0xC1A5);
+    if is_task(cfg) {
+        if cfg.method.w_qc_full_labels > 0.0 && demos.unlabeled.mode.contains(&UNKNOWN_MODE) {
+            bail!(
+                "{}: some unlabeled episodes have no mode, but this preset (full labels) needs every one",
+                cfg.demos.path
+            );
+        }
+        return crate::eval::reference_from_demos(eval_env, demos, episodes, seed);
+    }
+    let mut scripted = make_env(&cfg.env.name, cfg.env.n_modes)?;
+    crate::eval::build_reference(scripted.as_mut(), episodes, seed)
+}
+
 /// The run's actors: threads of this process, or `ess-actor` processes over iceoryx2
 /// shared memory (`run.transport`).
 fn rollout_source(
@@ -113,10 +148,7 @@ fn rollout_source(
         ActorTransport::Threads => {
             let workers: Vec<Worker> = seeds
                 .iter()
-                .map(|&s| -> Result<Worker> {
-                    let env = make_env(&cfg.env.name, cfg.env.n_modes)?;
-                    Ok(Worker::new(env, s, k))
-                })
+                .map(|&s| -> Result<Worker> { Ok(Worker::new(rollout_env(cfg)?, s, k)) })
                 .collect::<Result<_>>()?;
             Ok(Box::new(ThreadedActors::new(workers, latent)))
         }
@@ -132,7 +164,7 @@ fn rollout_source(
                 heartbeat_timeout: Duration::from_secs_f64(cfg.run.actor_timeout_s),
                 // Process start and env construction (MuJoCo model, expert weights).
                 startup_timeout: Duration::from_secs(30),
-                plain_env: false,
+                plain_env: is_task(cfg),
                 task_mode: None,
             })?;
             tracing::info!(run_id = actors.run_id(), pids = ?actors.pids(), "actor processes started");
@@ -292,7 +324,7 @@ impl<'c> Trainer<'c> {
         resuming: bool,
     ) -> Result<Self> {
         let started = Instant::now();
-        let mut eval_env = make_env(&cfg.env.name, cfg.env.n_modes)?;
+        let mut eval_env = rollout_env(cfg)?;
         let spec = eval_env.spec().clone();
         let disc_cols = obs_columns(cfg.disc.obs_prefix, spec.obs_dim).ok_or_else(|| {
             TrainInputError::DiscObsPrefix {
@@ -330,11 +362,7 @@ impl<'c> Trainer<'c> {
         let norm = ObsNorm { mean, std };
         let expert = ExpertData::new(&demos, &norm, dims);
         progress.message("behaviour classifier");
-        let reference = crate::eval::build_reference(
-            eval_env.as_mut(),
-            cfg.run.reference_episodes.max(1),
-            cfg.demos.seed ^ 0xC1A5,
-        )?;
+        let reference = reference(cfg, eval_env.as_mut(), &demos)?;
         let m = &cfg.method;
         let latent = LatentSpec {
             prior: m.prior,
