@@ -1,4 +1,5 @@
-//! Compiles `proto/ess/v1/*.proto` with the pure-Rust `protox` (no `protoc` needed):
+//! Compiles `proto/ess/v1/*.proto` and ONNX's `proto/onnx/onnx.proto` with the pure-Rust
+//! `protox` (no `protoc` needed):
 //! prost messages always; tonic client and server stubs with the `grpc` feature. The
 //! encoded `FileDescriptorSet` is kept for gRPC reflection and for the protobuf
 //! schemas embedded in MCAP run logs.
@@ -32,5 +33,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_server(grpc)
         .build_client(grpc)
         .compile_fds(fds)?;
+    // ONNX's own schema (vendored from the onnx wheel), for `ess export --onnx`.
+    let onnx = protox::compile([root.join("onnx/onnx.proto")], [&root])?;
+    tonic_prost_build::configure()
+        .build_server(false)
+        .build_client(false)
+        .compile_fds(onnx)?;
     Ok(())
 }

@@ -17,6 +17,7 @@
 //! | [`runlog`] | the MCAP run log `run.mcap` (writer, truncation-tolerant reader) and [`runlog::replay`] (`ess replay`) |
 //! | [`control`] | the control plane: [`control::jobs`] (the job manager), [`control::serve`] (`ess serve`, gRPC), [`control::client`] (`ess job ...`) |
 //! | [`import`] | `ess demos import`: Minari datasets ([`import::minari`]) and NumPy `.npz` ([`import::npz`]) into the demonstration file, labels, label ratio and provenance |
+//! | [`export`] | `ess export RUN_DIR --onnx FILE`: the trained policy as a standard ONNX model ([`export::onnx`]) |
 //! | [`experts`] | per-mode expert policies: PPO, and SAC ([`experts::sac`]) where PPO falls short |
 //! | [`actors`] | the launcher and supervisor of `ess-actor` processes over iceoryx2 ([`actors::ShmActors`]) |
 //!
@@ -30,6 +31,7 @@ pub mod control;
 pub mod eval;
 pub mod experiment;
 pub mod experts;
+pub mod export;
 pub mod import;
 pub mod malloc;
 pub mod objective;

@@ -10,8 +10,9 @@ mod cli;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use cli::{
-    InputError, demos::DemosCmd, experiment::ExperimentArgs, experts::ExpertsCmd, input_err,
-    job::JobArgs, replay::ReplayArgs, runtime, serve::ServeArgs, train::TrainArgs,
+    InputError, demos::DemosCmd, experiment::ExperimentArgs, experts::ExpertsCmd,
+    export::ExportArgs, input_err, job::JobArgs, replay::ReplayArgs, runtime, serve::ServeArgs,
+    train::TrainArgs,
 };
 use ess_learner::presets::PRESETS;
 use std::path::PathBuf;
@@ -44,6 +45,8 @@ enum Cmd {
     /// Run a grid of trainings (presets x tasks x variants x seeds) from a TOML spec
     /// here or on Slurm, and report it as the paper's tables and figures.
     Experiment(ExperimentArgs),
+    /// Export a trained policy (`--onnx FILE`: a standard ONNX model).
+    Export(ExportArgs),
     /// List the method presets.
     Presets,
     /// Run the job server: a gRPC daemon that owns training jobs on this machine.
@@ -78,6 +81,7 @@ fn main() {
         Cmd::Demos { cmd } => cli::demos::demos(cmd),
         Cmd::Experts { cmd } => cli::experts::experts(cmd),
         Cmd::Replay(a) => cli::replay::replay(a),
+        Cmd::Export(a) => cli::export::export(a),
         Cmd::Experiment(a) => cli::experiment::experiment(a),
         Cmd::Serve(a) => runtime().and_then(|rt| rt.block_on(cli::serve::serve(a))),
         Cmd::Job(a) => runtime().and_then(|rt| rt.block_on(cli::job::job(a))),

@@ -8,6 +8,7 @@
 //! - [`mlp`]: the pure-Rust forward pass over such weights.
 //! - [`chunk`]: the transition chunk an actor hands the learner.
 //! - [`shm`]: the `#[repr(C)]` shared-memory layouts of chunks and weights.
+//! - [`onnx`]: ONNX's own protobuf messages, for exporting policies.
 //!
 //! This crate depends on nothing internal and never on tch or MuJoCo.
 
@@ -29,7 +30,14 @@ pub mod pb {
     include!(concat!(env!("OUT_DIR"), "/ess.v1.rs"));
 }
 
-/// The encoded `FileDescriptorSet` of every `.proto` in this crate: served by gRPC
+/// ONNX's protobuf schema (`proto/onnx/onnx.proto`, vendored from the onnx wheel):
+/// the messages `ess export --onnx` writes a model with.
+#[allow(missing_docs, clippy::all, clippy::pedantic)]
+pub mod onnx {
+    include!(concat!(env!("OUT_DIR"), "/onnx.rs"));
+}
+
+/// The encoded `FileDescriptorSet` of Ess's own `.proto` files (`ess.v1`): served by gRPC
 /// reflection and embedded as the schema of protobuf channels in MCAP files.
 pub const FILE_DESCRIPTOR_SET: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/ess_descriptor.bin"));

@@ -4,6 +4,7 @@
 pub mod demos;
 pub mod experiment;
 pub mod experts;
+pub mod export;
 pub mod job;
 pub mod replay;
 pub mod serve;

@@ -16,12 +16,12 @@
 //! itself lives in [`crate::objective::combined`].
 
 pub mod checkpoint;
-mod data;
+pub(crate) mod data;
 pub mod nets;
 pub mod optim;
 pub mod ppo;
 mod records;
-mod setup;
+pub(crate) mod setup;
 mod stages;
 
 pub use data::{

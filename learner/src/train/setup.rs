@@ -109,7 +109,7 @@ fn is_task(cfg: &CheckedConfig) -> bool {
 
 /// The env the actors and the evaluation step: a built-in env as `make_env` builds it
 /// (with its experts), a task file as a plain env.
-fn rollout_env(cfg: &CheckedConfig) -> Result<Box<dyn Env>> {
+pub(crate) fn rollout_env(cfg: &CheckedConfig) -> Result<Box<dyn Env>> {
     let (name, k) = (&cfg.env.name, cfg.env.n_modes);
     Ok(if is_task(cfg) {
         make_plain_env(name, k)?
@@ -133,6 +133,23 @@ fn reference(cfg: &CheckedConfig, eval_env: &mut dyn Env, demos: &Demos) -> Resu
     }
     let mut scripted = make_env(&cfg.env.name, cfg.env.n_modes)?;
     crate::eval::build_reference(scripted.as_mut(), episodes, seed)
+}
+
+/// What evaluation measures on a task file, and why.
+fn evaluation_note(env: &dyn Env, demos: &Demos) -> String {
+    let k = env.spec().n_modes;
+    let known = |s: &ess_envs::DemoSplit| s.mode.iter().filter(|&&m| (m as usize) < k).count();
+    let steps = known(&demos.labeled) + known(&demos.unlabeled);
+    let reward = if env.has_mode_rewards() {
+        "normalized reward applies (the task file's [[modes]] rewards; expert return = the \
+         demonstrations' own, random = random rollouts)"
+    } else {
+        "normalized reward does not apply (the task file defines no [[modes]] rewards; it reads 0)"
+    };
+    format!(
+        "evaluation: NMI / ENT with a behaviour classifier trained on the {steps} demonstration \
+         steps of known mode; {reward}"
+    )
 }
 
 /// The run's actors: threads of this process, or `ess-actor` processes over iceoryx2
@@ -363,6 +380,9 @@ impl<'c> Trainer<'c> {
         let expert = ExpertData::new(&demos, &norm, dims);
         progress.message("behaviour classifier");
         let reference = reference(cfg, eval_env.as_mut(), &demos)?;
+        if is_task(cfg) {
+            progress.message(&evaluation_note(eval_env.as_ref(), &demos));
+        }
         let m = &cfg.method;
         let latent = LatentSpec {
             prior: m.prior,
