@@ -280,6 +280,17 @@ pub fn make_env_in(
     }
 }
 
+/// The env as training, its actors and replay step it: a built-in env as [`make_env`]
+/// builds it (with its experts, whose wrapper's state differs from the plain env's), a
+/// task file (`task:PATH`, [`crate::task`]) as a plain env, since it has no expert.
+pub fn make_training_env(name: &str, n_modes: usize) -> Result<Box<dyn Env>, EnvError> {
+    if crate::task::task_path(name).is_some() {
+        make_plain_env(name, n_modes)
+    } else {
+        Ok(make_env(name, n_modes)?)
+    }
+}
+
 /// Builds any known env by name as a plain [`Env`] (no expert), with its default
 /// configuration, or a user's task file named `task:PATH` ([`crate::task`]): traj2d (exactly 4 modes), reacher (2 to 12), pusher (2 to 6 goals),
 /// walker2d and humanoid (exactly 3: forward, backward, balance). A bad `n_modes` is

@@ -45,6 +45,7 @@ pub use demos::{
 };
 pub use env::{
     Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_env_in, make_plain_env,
+    make_training_env,
 };
 pub use expert::{ExpertEnv, ExpertError, ExpertMeta, ExpertPolicy, expert_path, experts_dir};
 pub use humanoid::{Humanoid, HumanoidConfig};

@@ -390,5 +390,11 @@ fn a_task_file_trains_with_actor_processes_and_threads_on_imported_demos() {
         assert!(s["nmi"].as_f64().unwrap().is_finite(), "{s}");
         assert_eq!(s["env"], task().as_str());
         assert!(stdout.contains("normalized reward"), "{stdout}");
+        // Replay re-simulates a recorded episode of the task file exactly.
+        let log = Path::new(&run).join("run.mcap").display().to_string();
+        let r = ess(&["replay", &log, "--episode", "0"]);
+        let text = String::from_utf8_lossy(&r.stdout);
+        assert!(r.status.success(), "{name}: {}", String::from_utf8_lossy(&r.stderr));
+        assert!(text.contains("max |obs - recorded|       0.000e0"), "{name}: {text}");
     }
 }

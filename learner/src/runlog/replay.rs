@@ -16,7 +16,7 @@
 //! x-z; Humanoid: root x-y).
 
 use crate::runlog::{Record, RunLogContents, RunLogError, read};
-use ess_envs::{Env, EnvError, Pusher, PusherConfig, Reacher, ReacherConfig, make_env};
+use ess_envs::{Env, EnvError, Pusher, PusherConfig, Reacher, ReacherConfig, make_training_env};
 use ess_proto::pb;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -256,10 +256,11 @@ pub fn replay(rec: &Recording, episode: u32) -> Result<(ReplayReport, Trajectory
     }
     let env_name = &rec.config.env;
     let n_modes = rec.config.n_modes as usize;
-    // The env exactly as training and the actors build it (`make_env`: for Pusher,
-    // Walker2d and Humanoid the expert-driven wrapper, whose state carries the last
-    // observation after the simulator's), so the recorded states fit it.
-    let mut env: Box<dyn Env> = make_env(env_name, n_modes).map_err(env_err(format!(
+    // The env exactly as training and the actors build it (`make_training_env`: for
+    // Pusher, Walker2d and Humanoid the expert-driven wrapper, whose state carries the
+    // last observation after the simulator's; a task file plain), so the recorded
+    // states fit it.
+    let mut env: Box<dyn Env> = make_training_env(env_name, n_modes).map_err(env_err(format!(
         "building env `{env_name}` with {n_modes} modes"
     )))?;
     let spec = env.spec().clone();
@@ -464,6 +465,7 @@ mod tests {
     use super::*;
     use crate::runlog::RunLog;
     use ess_actor::{LatentSpec, PolicyWeights, eval_episode};
+    use ess_envs::make_env;
     use ess_proto::config::{ConfigBuilder, LatentPrior};
     use ess_proto::{Mlp, MlpLayout};
 

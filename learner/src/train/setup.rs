@@ -12,7 +12,7 @@ use crate::train::ppo::PpoLearner;
 use anyhow::{Context, Result, bail};
 use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
 use ess_envs::demos::UNKNOWN_MODE;
-use ess_envs::{Demos, Env, make_env, make_plain_env};
+use ess_envs::{Demos, Env, make_env, make_training_env};
 use ess_proto::CheckedConfig;
 use ess_proto::config::{ActorTransport, LatentPrior, RolloutCodes};
 use rand::SeedableRng;
@@ -107,15 +107,9 @@ fn is_task(cfg: &CheckedConfig) -> bool {
     ess_envs::task::task_path(&cfg.env.name).is_some()
 }
 
-/// The env the actors and the evaluation step: a built-in env as `make_env` builds it
-/// (with its experts), a task file as a plain env.
+/// The env the actors and the evaluation step ([`make_training_env`]).
 pub(crate) fn rollout_env(cfg: &CheckedConfig) -> Result<Box<dyn Env>> {
-    let (name, k) = (&cfg.env.name, cfg.env.n_modes);
-    Ok(if is_task(cfg) {
-        make_plain_env(name, k)?
-    } else {
-        make_env(name, k)?
-    })
+    Ok(make_training_env(&cfg.env.name, cfg.env.n_modes)?)
 }
 
 /// What evaluation scores against: a built-in env's experts roll the reference; a task
