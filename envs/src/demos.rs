@@ -37,6 +37,7 @@
 //! [`DemoMeta`] as JSON. [`Demos::load`] validates all of it and names the offending
 //! tensor, row, field or value (and the file) in its error.
 
+use std::borrow::Cow;
 use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 
@@ -581,20 +582,24 @@ pub fn generate_demos(spec: &DemoSpec) -> Result<Demos, DemoError> {
     })
 }
 
-fn f32_bytes(v: &[f32]) -> Vec<u8> {
-    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+/// `v` as little-endian F32 bytes: the vector itself on a little-endian machine (a
+/// 1M-transition import then saves without a copy of its data).
+fn f32_bytes(v: &[f32]) -> Cow<'_, [u8]> {
+    if cfg!(target_endian = "little") {
+        Cow::Borrowed(bytemuck::cast_slice(v))
+    } else {
+        Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect())
+    }
 }
 
-/// Encodes `u32` values as little-endian I32 (values above `i32::MAX` saturate, which
-/// the loader then rejects as out of range).
-/// `v` as I32 bytes; [`UNKNOWN_MODE`] is written as -1.
-fn i32_bytes(v: &[u32]) -> Vec<u8> {
-    v.iter()
-        .flat_map(|&x| match x {
-            UNKNOWN_MODE => (-1i32).to_le_bytes(),
-            _ => i32::try_from(x).unwrap_or(i32::MAX).to_le_bytes(),
-        })
-        .collect()
+/// `v` as little-endian I32 bytes, by bit pattern: [`UNKNOWN_MODE`] is -1; a value
+/// above `i32::MAX` otherwise comes out negative, which the loader rejects.
+fn i32_bytes(v: &[u32]) -> Cow<'_, [u8]> {
+    if cfg!(target_endian = "little") {
+        Cow::Borrowed(bytemuck::cast_slice(v))
+    } else {
+        Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect())
+    }
 }
 
 /// Builds the header metadata of a demos file from its meta JSON.
@@ -607,9 +612,9 @@ fn header(meta_json: String) -> HashMap<String, String> {
 }
 
 /// One tensor to write: name, dtype, shape, bytes.
-type RawTensor = (String, Dtype, Vec<usize>, Vec<u8>);
+type RawTensor<'a> = (String, Dtype, Vec<usize>, Cow<'a, [u8]>);
 
-fn split_tensors(name: &str, s: &DemoSplit, meta: &DemoMeta) -> Vec<RawTensor> {
+fn split_tensors<'a>(name: &str, s: &'a DemoSplit, meta: &DemoMeta) -> Vec<RawTensor<'a>> {
     let n = s.len();
     vec![
         (
@@ -652,8 +657,10 @@ fn split_tensors(name: &str, s: &DemoSplit, meta: &DemoMeta) -> Vec<RawTensor> {
 }
 
 impl Demos {
-    /// Serializes to safetensors bytes (see the module docs for the layout).
-    fn to_bytes(&self, path: &Path) -> Result<Vec<u8>, DemoError> {
+    /// Writes the dataset to `path` atomically ([`crate::AtomicFile`]): a temporary
+    /// file in the same directory is written tensor by tensor (no copy of the data in
+    /// memory), synced and renamed over `path`, so no half-written file is ever seen.
+    pub fn save(&self, path: &Path) -> Result<(), DemoError> {
         let ser_err = |reason: String| DemoError::Serialize {
             path: path.to_owned(),
             reason,
@@ -667,16 +674,16 @@ impl Demos {
                 .map_err(|e| ser_err(format!("tensor {name:?}: {e}")))?;
             views.push((name.clone(), view));
         }
-        safetensors::serialize(views, Some(header(meta_json))).map_err(|e| ser_err(e.to_string()))
-    }
-
-    /// Writes the dataset to `path` atomically: a temporary file in the same directory
-    /// is written, synced and renamed over `path`, so no half-written file is ever seen.
-    pub fn save(&self, path: &Path) -> Result<(), DemoError> {
-        let bytes = self.to_bytes(path)?;
-        crate::write_atomic(path, &bytes)
+        let file = crate::AtomicFile::new(path);
+        std::fs::File::create(file.tmp()).map_err(|source| DemoError::Io {
+            path: file.tmp().to_owned(),
+            source,
+        })?;
+        safetensors::serialize_to_file(views, Some(header(meta_json)), file.tmp())
+            .map_err(|e| ser_err(e.to_string()))?;
+        file.commit()
             .map_err(|(path, source)| DemoError::Io { path, source })?;
-        tracing::debug!(path = %path.display(), bytes = bytes.len(), "saved demonstrations");
+        tracing::debug!(path = %path.display(), rows = self.unlabeled.len() + self.labeled.len(), "saved demonstrations");
         Ok(())
     }
 
@@ -1208,7 +1215,7 @@ mod tests {
 
     /// A writable description of a demos file, to corrupt one piece at a time.
     struct RawFile {
-        tensors: Vec<RawTensor>,
+        tensors: Vec<RawTensor<'static>>,
         header: HashMap<String, String>,
     }
 
@@ -1216,6 +1223,10 @@ mod tests {
         fn of(demos: &Demos) -> Self {
             let mut tensors = split_tensors("unlabeled", &demos.unlabeled, &demos.meta);
             tensors.extend(split_tensors("labeled", &demos.labeled, &demos.meta));
+            let tensors = tensors
+                .into_iter()
+                .map(|(n, d, s, b)| (n, d, s, Cow::Owned(b.into_owned())))
+                .collect();
             let meta = serde_json::to_string(&demos.meta).expect("json");
             Self {
                 tensors,
@@ -1223,7 +1234,7 @@ mod tests {
             }
         }
 
-        fn tensor(&mut self, name: &str) -> &mut RawTensor {
+        fn tensor(&mut self, name: &str) -> &mut RawTensor<'static> {
             self.tensors
                 .iter_mut()
                 .find(|t| t.0 == name)
@@ -1356,7 +1367,7 @@ mod tests {
         let t = raw.tensor("labeled.act");
         let n = t.2[0];
         t.2 = vec![n - 1, 1];
-        t.3.truncate((n - 1) * 4);
+        t.3.to_mut().truncate((n - 1) * 4);
         assert_names(
             &raw.load_err(),
             &["labeled.act", &format!("{} rows", n - 1), &n.to_string()],
@@ -1368,7 +1379,7 @@ mod tests {
         for (value, shown) in [(4i32, "mode 4"), (-1, "mode -1")] {
             let mut raw = RawFile::of(&small_demos());
             let t = raw.tensor("labeled.mode");
-            t.3[12..16].copy_from_slice(&value.to_le_bytes());
+            t.3.to_mut()[12..16].copy_from_slice(&value.to_le_bytes());
             assert_names(&raw.load_err(), &["labeled.mode", "row 3", shown, "0..4"]);
         }
     }
@@ -1377,7 +1388,7 @@ mod tests {
     fn a_negative_episode_index_is_rejected() {
         let mut raw = RawFile::of(&small_demos());
         let t = raw.tensor("unlabeled.episode");
-        t.3[0..4].copy_from_slice(&(-2i32).to_le_bytes());
+        t.3.to_mut()[0..4].copy_from_slice(&(-2i32).to_le_bytes());
         assert_names(&raw.load_err(), &["unlabeled.episode", "row 0", "-2"]);
     }
 
@@ -1387,11 +1398,11 @@ mod tests {
         let t = raw.tensor("unlabeled.next_obs");
         // Row 7, column 3 of [n, 10].
         let at = (7 * 10 + 3) * 4;
-        t.3[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        t.3.to_mut()[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
         assert_names(&raw.load_err(), &["unlabeled.next_obs", "row 7", "NaN"]);
         let mut raw = RawFile::of(&small_demos());
         let t = raw.tensor("labeled.reward");
-        t.3[8..12].copy_from_slice(&f32::INFINITY.to_le_bytes());
+        t.3.to_mut()[8..12].copy_from_slice(&f32::INFINITY.to_le_bytes());
         assert_names(&raw.load_err(), &["labeled.reward", "row 2", "inf"]);
     }
 

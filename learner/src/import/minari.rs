@@ -141,8 +141,15 @@ pub fn read(
         path: data.clone(),
         what,
     };
-    if let Some(total) =
-        metadata(&data)?.and_then(|m| m.get("total_episodes").and_then(|t| t.as_u64()))
+    let meta = metadata(&data)?;
+    let count = |key: &str| {
+        meta.as_ref()
+            .and_then(|m| m.get(key).and_then(|t| t.as_u64()))
+    };
+    if let Some(steps) = count("total_steps") {
+        b.reserve(steps as usize);
+    }
+    if let Some(total) = count("total_episodes")
         && total as usize != names.len()
     {
         return Err(invalid(format!(

@@ -127,6 +127,19 @@ impl Builder {
         }
     }
 
+    /// Reserves room for `rows` transitions, when the source says how many it holds
+    /// (growing by doubling would hold up to three times the data at a reallocation).
+    pub fn reserve(&mut self, rows: usize) {
+        let (od, ad) = self.opts.dims;
+        let s = &mut self.split;
+        s.obs.reserve_exact(rows * od);
+        s.next_obs.reserve_exact(rows * od);
+        s.act.reserve_exact(rows * ad);
+        s.reward.reserve_exact(rows);
+        s.mode.reserve_exact(rows);
+        s.episode.reserve_exact(rows);
+    }
+
     /// The env's observation and action widths.
     pub fn dims(&self) -> (usize, usize) {
         self.opts.dims

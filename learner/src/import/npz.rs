@@ -264,6 +264,7 @@ pub fn read(
             ends.len()
         )));
     }
+    b.reserve(n);
     push_episodes(b, &obs, &act, next.as_ref(), rewards.as_ref(), &ends, |e| {
         side_labels.map_or_else(|| labels.as_ref().map(|l| l[e]), |s| s[e])
     })
