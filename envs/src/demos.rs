@@ -242,7 +242,7 @@ pub enum DemoError {
         reason: &'static str,
     },
     /// The environment failed.
-    #[error("environment error: {0}")]
+    #[error(transparent)]
     Env(#[from] EnvError),
     /// Reading or writing the file failed.
     #[error("{path}: I/O error: {source}")]

@@ -394,7 +394,59 @@ fn a_task_file_trains_with_actor_processes_and_threads_on_imported_demos() {
         let log = Path::new(&run).join("run.mcap").display().to_string();
         let r = ess(&["replay", &log, "--episode", "0"]);
         let text = String::from_utf8_lossy(&r.stdout);
-        assert!(r.status.success(), "{name}: {}", String::from_utf8_lossy(&r.stderr));
-        assert!(text.contains("max |obs - recorded|       0.000e0"), "{name}: {text}");
+        assert!(
+            r.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+        assert!(
+            text.contains("max |obs - recorded|       0.000e0"),
+            "{name}: {text}"
+        );
     }
+}
+
+#[test]
+fn training_a_task_without_or_with_unfit_demonstrations_is_one_line_exit_2() {
+    let d = tempfile::tempdir().unwrap();
+    let run = d.path().join("run").display().to_string();
+    let env_set = format!("env.name=\"{}\"", task());
+    let r = ess(&[
+        "train",
+        "--set",
+        &env_set,
+        "--set",
+        "env.n_modes=3",
+        "--out",
+        &run,
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "{err}");
+    // One error line (after `ess train`'s own header line).
+    let errors = err.lines().filter(|l| l.starts_with("error")).count();
+    assert_eq!(errors, 1, "{err}");
+    assert!(
+        err.contains("is a task file") && err.contains("ess demos import"),
+        "{err}"
+    );
+    // Demonstrations made for another env (traj2d) fed to the task.
+    let demos = d.path().join("traj2d.safetensors").display().to_string();
+    let mut gen_args = vec!["demos", "generate", "--out", &demos];
+    gen_args.extend_from_slice(&["--set", "demos.majority_episodes=4"]);
+    assert!(ess(&gen_args).status.success());
+    let demos_set = format!("demos.path=\"{demos}\"");
+    let r = ess(&[
+        "train",
+        "--set",
+        &env_set,
+        "--set",
+        "env.n_modes=3",
+        "--set",
+        &demos_set,
+        "--out",
+        &run,
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "{err}");
+    assert!(err.contains("dataset is for env `traj2d`"), "{err}");
 }

@@ -173,7 +173,8 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
             Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown),
             None => run(&cfg, &out, &mut progress, &shutdown),
         }
-        .map_err(input_if::<ess_learner::train::TrainInputError>)?;
+        .map_err(input_if::<ess_learner::train::TrainInputError>)
+        .map_err(input_if::<ess_envs::DemoError>)?;
         progress.emit(&ProgressEvent::Summary((&result.summary).into()));
         return Ok(());
     }
@@ -182,7 +183,8 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown),
         None => run(&cfg, &out, &mut progress, &shutdown),
     }
-    .map_err(input_if::<ess_learner::train::TrainInputError>)?;
+    .map_err(input_if::<ess_learner::train::TrainInputError>)
+    .map_err(input_if::<ess_envs::DemoError>)?;
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }

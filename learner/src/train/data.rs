@@ -3,7 +3,7 @@
 
 use super::records::EncoderAccuracy;
 use crate::train::nets::{Discriminator, tensor_2d};
-use anyhow::{Result, bail};
+use anyhow::Result;
 use ess_envs::{DemoSpec, Demos, generate_demos};
 use ess_proto::{CheckedConfig, Chunk};
 use rand::Rng;
@@ -31,14 +31,15 @@ pub fn load_or_generate_demos(cfg: &CheckedConfig) -> Result<Demos> {
         let path = PathBuf::from(&cfg.demos.path);
         let d = Demos::load(&path)?;
         if d.meta.env != cfg.env.name || d.meta.n_modes != cfg.env.n_modes {
-            bail!(
+            return Err(super::setup::TrainInputError::DemosMismatch(format!(
                 "{}: dataset is for env `{}` with {} modes, config asks env.name = `{}`, env.n_modes = {}",
                 path.display(),
                 d.meta.env,
                 d.meta.n_modes,
                 cfg.env.name,
                 cfg.env.n_modes
-            );
+            ))
+            .into());
         }
         Ok(d)
     }

@@ -36,6 +36,18 @@ pub enum TrainInputError {
         /// Its observation length.
         obs_dim: usize,
     },
+    /// A task file has no experts to generate demonstrations with.
+    #[error(
+        "env `{env}` is a task file: it has no experts to generate demonstrations with; set \
+         demos.path to a file written by `ess demos import`"
+    )]
+    TaskNeedsDemos {
+        /// The env's name.
+        env: String,
+    },
+    /// The demonstrations file does not fit the configured env.
+    #[error("{0}")]
+    DemosMismatch(String),
 }
 
 /// Seed of actor `i`'s random stream: the same on both transports, so one actor process
@@ -344,6 +356,12 @@ impl<'c> Trainer<'c> {
                 obs_dim: spec.obs_dim,
             }
         })?;
+        if is_task(cfg) && cfg.demos.path.is_empty() {
+            return Err(TrainInputError::TaskNeedsDemos {
+                env: cfg.env.name.clone(),
+            }
+            .into());
+        }
         std::fs::create_dir_all(out.join("checkpoints"))
             .with_context(|| format!("creating output dir {}", out.display()))?;
         if !resuming {
@@ -354,14 +372,16 @@ impl<'c> Trainer<'c> {
         progress.message("demonstrations");
         let demos = load_or_generate_demos(cfg)?;
         if demos.meta.obs_dim != spec.obs_dim || demos.meta.act_dim != spec.act_dim {
-            bail!(
-                "dataset dims obs {} / act {} do not match env `{}` (obs {} / act {})",
+            return Err(TrainInputError::DemosMismatch(format!(
+                "{}: dataset dims obs {} / act {} do not match env `{}` (obs {} / act {})",
+                cfg.demos.path,
                 demos.meta.obs_dim,
                 demos.meta.act_dim,
                 spec.name,
                 spec.obs_dim,
                 spec.act_dim
-            );
+            ))
+            .into());
         }
         let dims = Dims {
             obs: spec.obs_dim,
