@@ -245,12 +245,12 @@ pub enum DemoError {
     #[error(transparent)]
     Env(#[from] EnvError),
     /// Reading or writing the file failed.
-    #[error("{path}: I/O error: {source}")]
+    #[error("{path}: I/O error: {error}")]
     Io {
         /// File involved.
         path: PathBuf,
-        /// Underlying error.
-        source: std::io::Error,
+        /// Underlying error (in the message, not repeated as a source).
+        error: std::io::Error,
     },
     /// The safetensors container could not be built.
     #[error("{path}: cannot serialize safetensors: {reason}")]
@@ -675,23 +675,23 @@ impl Demos {
             views.push((name.clone(), view));
         }
         let file = crate::AtomicFile::new(path);
-        std::fs::File::create(file.tmp()).map_err(|source| DemoError::Io {
+        std::fs::File::create(file.tmp()).map_err(|error| DemoError::Io {
             path: file.tmp().to_owned(),
-            source,
+            error,
         })?;
         safetensors::serialize_to_file(views, Some(header(meta_json)), file.tmp())
             .map_err(|e| ser_err(e.to_string()))?;
         file.commit()
-            .map_err(|(path, source)| DemoError::Io { path, source })?;
+            .map_err(|(path, error)| DemoError::Io { path, error })?;
         tracing::debug!(path = %path.display(), rows = self.unlabeled.len() + self.labeled.len(), "saved demonstrations");
         Ok(())
     }
 
     /// Reads and fully validates a dataset written by [`Demos::save`].
     pub fn load(path: &Path) -> Result<Demos, DemoError> {
-        let bytes = std::fs::read(path).map_err(|source| DemoError::Io {
+        let bytes = std::fs::read(path).map_err(|error| DemoError::Io {
             path: path.to_owned(),
-            source,
+            error,
         })?;
         Self::from_bytes(&bytes, path)
     }

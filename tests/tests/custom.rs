@@ -126,7 +126,7 @@ fn minari_and_npz_fixtures_import_bit_for_bit() {
     let d = tempfile::tempdir().unwrap();
     let e = expected();
     let (a, b) = (
-        d.path().join("a.safetensors"),
+        d.path().join("new/dir/a.safetensors"),
         d.path().join("b.safetensors"),
     );
     let out = import(&[

@@ -68,6 +68,7 @@ pub fn demos(cmd: DemosCmd) -> Result<()> {
         DemosCmd::Generate { config, out } => {
             let cfg = resolve(&config)?;
             let d = generate_demos(&demo_spec(&cfg)).map_err(input_err)?;
+            super::create_parent(&out)?;
             d.save(&out)?;
             println!("wrote {}", out.display());
             println!("{}", serde_json::to_string_pretty(&d.meta)?);
@@ -195,6 +196,7 @@ fn import(args: &ImportArgs) -> Result<()> {
         source("minari", &args.source, &data).map_err(input_err)?
     };
     let demos = b.finish(src).map_err(input_err)?;
+    super::create_parent(&args.out)?;
     demos.save(&args.out)?;
     println!("wrote {}", args.out.display());
     println!("{}", serde_json::to_string_pretty(&demos.meta)?);

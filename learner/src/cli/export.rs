@@ -20,6 +20,7 @@ pub fn export(a: ExportArgs) -> Result<()> {
             a.run.display()
         )));
     }
+    super::create_parent(&a.onnx)?;
     let ckpt = ess_learner::export::export_onnx(&a.run, &a.onnx)?;
     println!("wrote {} (from {})", a.onnx.display(), ckpt.display());
     println!(

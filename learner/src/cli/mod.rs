@@ -51,6 +51,15 @@ pub fn input_err(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::Error::new(InputError(e.to_string()))
 }
 
+/// Creates the directory an output file goes into (an input error when it cannot be).
+pub fn create_parent(path: &std::path::Path) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| input_err(format!("{}: cannot create it: {e}", dir.display())))?;
+    }
+    Ok(())
+}
+
 /// `e` as an input error (exit 2) when it is a `T`, the library's typed input errors.
 pub fn input_if<T: std::error::Error + Send + Sync + 'static>(e: anyhow::Error) -> anyhow::Error {
     if e.downcast_ref::<T>().is_some() {
