@@ -582,23 +582,22 @@ pub fn generate_demos(spec: &DemoSpec) -> Result<Demos, DemoError> {
     })
 }
 
-/// `v` as little-endian F32 bytes: the vector itself on a little-endian machine (a
-/// 1M-transition import then saves without a copy of its data).
-fn f32_bytes(v: &[f32]) -> Cow<'_, [u8]> {
+/// `v`'s little-endian bytes: the vector itself on a little-endian machine (a
+/// 1M-transition import then saves without a copy of its data). `u32` modes and
+/// episodes go out as I32 by bit pattern: [`UNKNOWN_MODE`] is -1; any other value above
+/// `i32::MAX` comes out negative, which the loader rejects.
+fn le_bytes<T: bytemuck::Pod>(v: &[T]) -> Cow<'_, [u8]> {
+    let bytes: &[u8] = bytemuck::cast_slice(v);
     if cfg!(target_endian = "little") {
-        Cow::Borrowed(bytemuck::cast_slice(v))
+        Cow::Borrowed(bytes)
     } else {
-        Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect())
-    }
-}
-
-/// `v` as little-endian I32 bytes, by bit pattern: [`UNKNOWN_MODE`] is -1; a value
-/// above `i32::MAX` otherwise comes out negative, which the loader rejects.
-fn i32_bytes(v: &[u32]) -> Cow<'_, [u8]> {
-    if cfg!(target_endian = "little") {
-        Cow::Borrowed(bytemuck::cast_slice(v))
-    } else {
-        Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect())
+        let w = std::mem::size_of::<T>();
+        Cow::Owned(
+            bytes
+                .chunks(w)
+                .flat_map(|c| c.iter().rev().copied())
+                .collect(),
+        )
     }
 }
 
@@ -621,37 +620,37 @@ fn split_tensors<'a>(name: &str, s: &'a DemoSplit, meta: &DemoMeta) -> Vec<RawTe
             format!("{name}.obs"),
             Dtype::F32,
             vec![n, meta.obs_dim],
-            f32_bytes(&s.obs),
+            le_bytes(&s.obs),
         ),
         (
             format!("{name}.act"),
             Dtype::F32,
             vec![n, meta.act_dim],
-            f32_bytes(&s.act),
+            le_bytes(&s.act),
         ),
         (
             format!("{name}.next_obs"),
             Dtype::F32,
             vec![n, meta.obs_dim],
-            f32_bytes(&s.next_obs),
+            le_bytes(&s.next_obs),
         ),
         (
             format!("{name}.mode"),
             Dtype::I32,
             vec![n],
-            i32_bytes(&s.mode),
+            le_bytes(&s.mode),
         ),
         (
             format!("{name}.episode"),
             Dtype::I32,
             vec![n],
-            i32_bytes(&s.episode),
+            le_bytes(&s.episode),
         ),
         (
             format!("{name}.reward"),
             Dtype::F32,
             vec![n],
-            f32_bytes(&s.reward),
+            le_bytes(&s.reward),
         ),
     ]
 }

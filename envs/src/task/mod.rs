@@ -61,8 +61,8 @@ pub use file::{ModeReward, ObsPiece, RewardTerm, TaskFile, Terminate};
 use crate::env::{Env, EnvError, EnvSpec, StateReader, StateWriter, StepOutcome, check_obs_len};
 use crate::locomotion::Sim;
 use file::task_error;
-use mujoco_rs::prelude::{MjModel, MjtObjBase};
-use quantity::{Scalar, Span, kept, resolve_scalar, resolve_span};
+use mujoco_rs::prelude::MjModel;
+use quantity::{Scalar, Span, body_id, kept, resolve_scalar, resolve_span};
 
 /// The prefix of a task file's env name: `task:PATH`.
 pub const TASK_PREFIX: &str = "task:";
@@ -235,12 +235,6 @@ fn resolve_pieces(model: &MjModel, obs: &[ObsPiece]) -> Result<Vec<Piece>, (usiz
             })
         })
         .collect()
-}
-
-fn body_id(model: &MjModel, name: &str) -> Result<usize, String> {
-    model
-        .name_to_id(MjtObjBase::mjOBJ_BODY, name)
-        .ok_or_else(|| format!("the model has no body named {name:?}"))
 }
 
 fn resolve_term(model: &MjModel, t: &RewardTerm) -> Result<Term, String> {

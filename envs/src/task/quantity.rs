@@ -67,6 +67,11 @@ fn id(model: &MjModel, kind: MjtObjBase, what: &str, name: &str) -> Result<usize
         .ok_or_else(|| format!("the model has no {what} named {name:?}"))
 }
 
+/// The id of the body named `name`.
+pub(crate) fn body_id(model: &MjModel, name: &str) -> Result<usize, String> {
+    id(model, MjtObjBase::mjOBJ_BODY, "body", name)
+}
+
 fn to_usize(x: i32) -> usize {
     usize::try_from(x).unwrap_or(0)
 }
@@ -81,7 +86,7 @@ pub(crate) fn resolve_span(model: &MjModel, key: &str, name: &str) -> Result<Spa
         len: usize::try_from(len).unwrap_or(0),
     };
     let body = |source: fn(usize) -> Source, len| {
-        id(model, MjtObjBase::mjOBJ_BODY, "body", name).map(|b| Span {
+        body_id(model, name).map(|b| Span {
             source: source(b),
             start: 0,
             len,

@@ -51,27 +51,19 @@ pub fn run_policy(out: &Path) -> Result<(PolicyWeights, CheckedConfig, std::path
 /// checkpoint it came from.
 pub fn export_onnx(out: &Path, path: &Path) -> Result<std::path::PathBuf> {
     let (w, cfg, dir) = run_policy(out)?;
+    let mut prior = w.prior_logits.clone();
+    ess_actor::policy::softmax_in_place(&mut prior);
     let meta = vec![
         ("ess.method".to_string(), cfg.method.name.clone()),
         ("ess.env".to_string(), cfg.env.name.clone()),
         ("ess.n_codes".to_string(), cfg.env.n_modes.to_string()),
         ("ess.use_eps".to_string(), cfg.method.use_eps.to_string()),
         ("ess.checkpoint".to_string(), dir.display().to_string()),
-        (
-            "ess.prior".to_string(),
-            format!("{:?}", softmax(&w.prior_logits)),
-        ),
+        ("ess.prior".to_string(), format!("{:?}", prior)),
     ];
     let model = onnx::policy_model(&w, &meta);
     let bytes = prost::Message::encode_to_vec(&model);
     ess_envs::write_atomic(path, &bytes)
         .map_err(|(p, e)| anyhow::anyhow!("writing {}: {e}", p.display()))?;
     Ok(dir)
-}
-
-fn softmax(logits: &[f32]) -> Vec<f32> {
-    let m = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let e: Vec<f32> = logits.iter().map(|l| (l - m).exp()).collect();
-    let z: f32 = e.iter().sum();
-    e.iter().map(|x| x / z).collect()
 }

@@ -172,11 +172,7 @@ pub fn read(
         let (os, obs) = floats(&g, ep, "observations", &data)?;
         let (asz, act) = floats(&g, ep, "actions", &data)?;
         for (field, shape, want) in [("observations", &os, od), ("actions", &asz, ad)] {
-            let w = if shape.len() == 1 {
-                1
-            } else {
-                shape[1..].iter().product()
-            };
+            let w = super::row_width(shape);
             if w != want {
                 return Err(invalid(format!(
                     "{ep}: {field} has shape {shape:?}: width {w}, but the env's is {want}"

@@ -276,7 +276,7 @@ impl Builder {
         if !(r > 0.0 && r <= 1.0) {
             return Err(opt_err(format!("label ratio {r} must be in (0, 1]")));
         }
-        let labeled = self.labeled_split(k)?;
+        let labeled = self.labeled_split(k);
         let meta = self.meta(k, &labeled, &mut source);
         Ok(Demos {
             meta,
@@ -285,7 +285,7 @@ impl Builder {
         })
     }
 
-    fn labeled_split(&self, k: usize) -> Result<DemoSplit, ImportError> {
+    fn labeled_split(&self, k: usize) -> DemoSplit {
         let (od, ad) = self.opts.dims;
         let quota =
             ess_envs::demos::labeled_steps_per_mode(self.opts.label_ratio, self.split.len(), k);
@@ -315,7 +315,7 @@ impl Builder {
             }
             labeled.extend(&part);
         }
-        Ok(labeled)
+        labeled
     }
 
     /// Rows `a..b` of the unlabeled split as one episode of index 0.
@@ -367,6 +367,11 @@ impl Builder {
     }
 }
 
+/// Values per row of an array of `shape`: 0 for a scalar (no rows), 1 for a vector.
+pub(crate) fn row_width(shape: &[usize]) -> usize {
+    shape.get(1..).map_or(0, |s| s.iter().product())
+}
+
 /// SHA-256 of a file, hex, read in blocks.
 pub fn sha256_file(path: &Path) -> Result<String, ImportError> {
     use std::io::Read;
@@ -396,4 +401,15 @@ pub fn source(format: &str, path: &Path, data_file: &Path) -> Result<DemoSource,
         episodes: 0,
         options: BTreeMap::new(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn row_width_is_zero_for_a_scalar_instead_of_panicking() {
+        assert_eq!(super::row_width(&[]), 0);
+        assert_eq!(super::row_width(&[7]), 1);
+        assert_eq!(super::row_width(&[7, 8]), 8);
+        assert_eq!(super::row_width(&[7, 2, 3]), 6);
+    }
 }

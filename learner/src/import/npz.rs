@@ -227,7 +227,7 @@ pub fn read(
     check_rows("actions", &act.shape)?;
     let (od, ad) = b.dims();
     for (name, a, want) in [("observations", &obs, od), ("actions", &act, ad)] {
-        let w: usize = a.shape[1..].iter().product();
+        let w = super::row_width(&a.shape);
         if a.shape.len() != 2 || w != want {
             return Err(invalid(format!(
                 "{name} has shape {:?}: width {w}, but the env's is {want}",
@@ -279,8 +279,7 @@ fn push_episodes(
     ends: &[usize],
     label: impl Fn(usize) -> Option<i64>,
 ) -> Result<(), ImportError> {
-    let od = obs.data.len() / obs.shape[0].max(1);
-    let ad = act.data.len() / act.shape[0].max(1);
+    let (od, ad) = b.dims();
     let mut start = 0;
     for (e, &end) in ends.iter().enumerate() {
         // Without next_observations the last step has no next observation: dropped.

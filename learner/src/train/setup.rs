@@ -144,7 +144,7 @@ fn reference(cfg: &CheckedConfig, eval_env: &mut dyn Env, demos: &Demos) -> Resu
 /// What evaluation measures on a task file, and why.
 fn evaluation_note(env: &dyn Env, demos: &Demos) -> String {
     let k = env.spec().n_modes;
-    let known = |s: &ess_envs::DemoSplit| s.mode.iter().filter(|&&m| (m as usize) < k).count();
+    let known = |s: &ess_envs::DemoSplit| s.steps_per_mode(k).iter().sum::<usize>();
     let steps = known(&demos.labeled) + known(&demos.unlabeled);
     let reward = if env.has_mode_rewards() {
         "normalized reward applies (the task file's [[modes]] rewards; expert return = the \
