@@ -16,12 +16,15 @@ build: bootstrap
 train: build
 	@$(ENV) && ./target/release/ess train $(ARGS)
 
-## Every test (unit, golden numbers, cross-process CLI), then format and lint checks.
+## Format and lint first (they fail in seconds), then every test (unit, golden numbers,
+## cross-process CLI) under cargo-nextest (.config/nextest.toml). One build serves both
+## the binaries the cross-process tests start and the tests: same target selection, same
+## features. Incremental artifacts are off here: they doubled the disk a fresh build takes.
 test: bootstrap
-	@$(ENV) && cargo build --locked -p ess-learner --bin ess -p ess-actor --bin ess-actor
-	@$(ENV) && cargo test --workspace --locked
 	@$(ENV) && cargo fmt --all --check
 	@$(ENV) && cargo clippy --workspace --all-targets --locked -- -D warnings
+	@$(ENV) && CARGO_INCREMENTAL=0 cargo build --workspace --lib --bins --tests --locked
+	@$(ENV) && CARGO_INCREMENTAL=0 cargo nextest run --workspace --lib --bins --tests --locked
 
 lint: bootstrap
 	@$(ENV) && cargo fmt --all --check

@@ -6,6 +6,8 @@
 #   - MuJoCo 3.17.0's shared library from PyPI's mujoco==3.17.0 wheel (for mujoco-rs).
 #   - CMake from PyPI's cmake wheel when none is on PATH: hdf5-metno builds a static
 #     HDF5 from source with it (for `ess demos import` of Minari datasets).
+#   - cargo-nextest (crates.io, `cargo install --locked`) when `cargo nextest` is
+#     missing: `make test` runs the tests under it.
 #   - with --slurm only: Debian's slurm-wlm and munge (apt; root or sudo), for
 #     `ess experiment --slurm` on this machine and bench/slurm_grid.sh. Nothing else
 #     needs them.
@@ -95,6 +97,15 @@ elif [ ! -x "$cmake_dir/cmake/data/bin/cmake" ]; then
   [ -x "$cmake_dir/cmake/data/bin/cmake" ] || die "cmake wheel installed but $cmake_dir/cmake/data/bin/cmake is missing"
 else
   say "cmake already in $cmake_dir"
+fi
+
+# --- cargo-nextest (the test runner of `make test`) --------------------------------------
+NEXTEST_VERSION=0.9.143
+if cargo nextest --version >/dev/null 2>&1; then
+  say "cargo-nextest already installed"
+else
+  say "installing cargo-nextest $NEXTEST_VERSION (cargo install, a few minutes)"
+  cargo install --locked --quiet "cargo-nextest@$NEXTEST_VERSION"
 fi
 
 # --- env file -------------------------------------------------------------------------

@@ -58,8 +58,15 @@ fn weights_for(od: usize, ad: usize, k: usize, version: u64, shift: f32) -> Arc<
     })
 }
 
+/// Heartbeat timeout of the tests that compare numbers between runs: long enough that a
+/// starved machine never restarts (and so reseeds) an actor that is only slow. Tests of
+/// hang detection use short ones and compare nothing a restart changes.
+const STEADY: Duration = Duration::from_secs(120);
+/// The same for `ess train`.
+const STEADY_SET: [&str; 2] = ["--set", "run.actor_timeout_s=120"];
+
 fn shm_actors(seeds: &[u64], max_steps: usize) -> ShmActors {
-    shm_actors_on(ENV, K, seeds, max_steps, Duration::from_secs(3))
+    shm_actors_on(ENV, K, seeds, max_steps, STEADY)
 }
 
 fn shm_actors_on(
@@ -135,7 +142,7 @@ fn evaluation_in_actor_processes_equals_the_in_process_one() {
         let reference = reference(env, k);
         let spec = ess_envs::make_env(env, k).unwrap().spec().clone();
         let seeds: Vec<u64> = (0..n_actors as u64).map(|i| 21 + i).collect();
-        let mut procs = shm_actors_on(env, k, &seeds, 200, Duration::from_secs(3));
+        let mut procs = shm_actors_on(env, k, &seeds, 200, STEADY);
         let pids = procs.pids();
         // A rollout, then an evaluation whose weights carry the same caller version with
         // other parameters (as in training: evaluated after the update), then the next
@@ -262,6 +269,7 @@ fn one_actor_process_trains_to_the_same_numbers_as_one_thread() {
         let mut args = vec!["train", "--seed", "3", "--out", out.to_str().unwrap()];
         args.extend_from_slice(SMOKE);
         args.extend_from_slice(&["--set", "run.reference_episodes=2"]);
+        args.extend_from_slice(&STEADY_SET);
         args.extend_from_slice(extra);
         let o = ess(&args);
         assert!(
@@ -283,7 +291,10 @@ fn one_actor_process_trains_to_the_same_numbers_as_one_thread() {
 fn two_runs_at_once_never_see_each_others_actors() {
     let tmp = tempfile::tempdir().unwrap();
     let outs = [tmp.path().join("a"), tmp.path().join("b")];
-    let children: Vec<_> = outs.iter().map(|o| spawn_training(o, "2", "4")).collect();
+    let children: Vec<_> = outs
+        .iter()
+        .map(|o| spawn_training_with(o, "2", "4", &STEADY_SET))
+        .collect();
     for (c, o) in children.into_iter().zip(&outs) {
         let r = c.wait_with_output().unwrap();
         assert!(
