@@ -504,3 +504,55 @@ fn ess_actor_refuses_bad_arguments_naming_them() {
         assert!(err.contains(named), "{err}");
     }
 }
+
+/// Hand-found: `ess` run from a shell that never sourced `.deps/env.sh` worked, but its
+/// `ess-actor` children could not load `libmujoco.so` (exit 127, three restarts). Both
+/// binaries now carry the library directories in their rpath.
+#[test]
+fn actors_start_without_the_library_path_of_the_shell() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = Command::new(ess_bin())
+        .args([
+            "train",
+            "--actors",
+            "1",
+            "--out",
+            tmp.path().to_str().unwrap(),
+        ])
+        .args(SMOKE)
+        .args(["--set", "run.reference_episodes=2"])
+        .env_remove("LD_LIBRARY_PATH")
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Hand-found: an actor that died at start was reported as "exited (exit status: 127)",
+/// its own message long scrolled away; the error now quotes its last output.
+#[test]
+fn an_actor_that_dies_names_its_cause_in_the_error() {
+    use std::os::unix::fs::PermissionsExt;
+    let tmp = tempfile::tempdir().unwrap();
+    let fake = tmp.path().join("ess-actor");
+    let msg = "ess-actor: error while loading shared libraries: libfake.so.1: cannot open shared object file";
+    std::fs::write(&fake, format!("#!/bin/sh\necho '{msg}' >&2\nexit 127\n")).unwrap();
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let o = Command::new(ess_bin())
+        .args(["train", "--actors", "1", "--out"])
+        .arg(tmp.path().join("run"))
+        .args(SMOKE)
+        .env("ESS_ACTOR_BIN", &fake)
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    let last = err
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("");
+    assert!(last.contains("exit status: 127"), "last line: {last}");
+    assert!(last.contains("libfake.so.1"), "last line: {last}");
+}

@@ -19,21 +19,25 @@
 //! (no transport message carries an actor's state yet), so a resumed run with actor
 //! processes starts fresh episodes and is not bit-identical to an uninterrupted one.
 //!
+//! An actor's standard error passes through the learner's, and the error naming an actor
+//! that exited quotes its last lines (the loader's message behind exit status 127, say).
+//!
 //! Children run in their own process group (a terminal Ctrl-C reaches only the learner,
 //! which finishes its iteration and then stops them), and exit by themselves when the
 //! learner dies. Dropping [`ShmActors`] sends a stop request, waits briefly, kills what is
 //! left, reaps every child and removes the dead nodes' iceoryx2 resources; creating one
 //! first removes the resources of dead nodes left by killed runs.
 //!
-//! Configuration: `run.actors` already counted the actor threads (default 1), so the
-//! choice of transport is a separate `run.transport` (`threads` | `processes`) rather than
-//! a special `run.actors = 0`; `ess train --actors N` sets both, `--actors 0` selects the
-//! threads. Actor `i` seeds its stream with `train::actor_seed` on either transport, which
-//! is why `--actors 1` reproduces the threaded run bit for bit. A restarted actor gets a
-//! different seed (its predecessor's episodes are not replayed), so a run with a restart is
+//! Configuration: the choice of transport is `run.transport` (`threads` |
+//! `processes`); `run.actors = 0` (in a config, `--set`, a job spec or `ess train
+//! --actors 0`) is the single-process path, one actor thread. Actor `i` seeds its stream
+//! with `train::actor_seed` on either transport, which is why `--actors 1` reproduces the
+//! threaded run bit for bit. A restarted actor gets a different seed (its predecessor's
+//! episodes are not replayed), so a run with a restart is
 //! no longer bit-identical to one without.
 
 mod eval;
+mod stderr;
 
 use ess_actor::shm::{
     HEARTBEAT_PERIOD, Ipc, Request, ShmTransportError, Status, node, weights_msg,
@@ -51,6 +55,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use stderr::StderrTail;
 
 /// Restarts of one actor within one rollout after which the rollout fails.
 const MAX_RESTARTS_PER_ROLLOUT: u32 = 3;
@@ -155,6 +160,8 @@ struct Proc {
     /// subscribed, so resend at once rather than after the resend period.
     just_started: bool,
     restarts: u32,
+    /// Its standard error's last lines, for the error that names it dead.
+    stderr: StderrTail,
 }
 
 /// Actors as `ess-actor` processes over iceoryx2 shared memory.
@@ -303,7 +310,7 @@ impl ShmActors {
         if let Some(k) = self.cfg.task_mode {
             cmd.arg("--task-mode").arg(k.to_string());
         }
-        let child = cmd
+        let mut child = cmd
             .arg("--run-id")
             .arg(&self.cfg.run_id)
             .arg("--index")
@@ -324,7 +331,7 @@ impl ShmActors {
             .arg(std::process::id().to_string())
             .stdin(Stdio::null())
             .stdout(Stdio::null())
-            .stderr(Stdio::inherit())
+            .stderr(Stdio::piped())
             .process_group(0)
             .spawn()
             .map_err(|source| ShmActorsError::Spawn {
@@ -332,6 +339,11 @@ impl ShmActors {
                 path: self.cfg.binary.clone(),
                 source,
             })?;
+        let stderr = child
+            .stderr
+            .take()
+            .map(StderrTail::follow)
+            .unwrap_or_default();
         let now = Instant::now();
         Ok(Proc {
             pid: child.id(),
@@ -342,6 +354,7 @@ impl ShmActors {
             last_resend: now,
             just_started: false,
             restarts,
+            stderr,
         })
     }
 
@@ -438,7 +451,7 @@ impl ShmActors {
     ) -> Result<bool, ActorError> {
         let p = &mut self.procs[i];
         let exited = match p.child.try_wait() {
-            Ok(Some(st)) => Some(format!("exited ({st})")),
+            Ok(Some(st)) => Some(p.stderr.explain(format!("exited ({st})"))),
             Ok(None) => None,
             Err(e) => Some(format!("cannot be waited on ({e})")),
         };
