@@ -4,8 +4,10 @@
 //! pass of the policy (no libtorch here: see [`ess_proto::mlp`]), and hand the learner chunks of
 //! transitions through a [`transport::RolloutSource`]. Evaluation episodes with a given
 //! one-hot code run here too ([`rollout::eval_episode`]). [`shm`] is the iceoryx2
-//! transport of actor processes (the `ess-actor` binary).
+//! transport of actor processes (the `ess-actor` binary); [`logging`] is both
+//! binaries' log set-up.
 
+pub mod logging;
 pub mod policy;
 pub mod rollout;
 pub mod shm;

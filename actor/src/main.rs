@@ -47,13 +47,7 @@ struct Args {
 }
 
 fn main() -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    ess_actor::logging::init();
     let a = Args::parse();
     if a.n_actors == 0 || a.index >= a.n_actors {
         anyhow::bail!(

@@ -68,13 +68,7 @@ enum Cmd {
 
 fn main() {
     ess_learner::malloc::keep_freed_memory();
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-        )
-        .init();
+    ess_actor::logging::init();
     let cli = Cli::parse();
     let r = match cli.cmd {
         Cmd::Train(a) => cli::train::train(a),

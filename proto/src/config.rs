@@ -474,7 +474,8 @@ pub struct RunConfig {
     /// Actors, each stepping one environment (threads or processes, see `transport`);
     /// default: one per core of this machine ([`default_actors`]), so a run's numbers
     /// depend on the machine unless `actors` is given. Actor `i` seeds its random
-    /// stream the same way on both transports.
+    /// stream the same way on both transports. 0 is the single-process path: checking
+    /// turns it into one actor on `threads` (what `ess train --actors 0` asks for).
     pub actors: usize,
     /// Where the actors run: `processes` (default: `ess-actor` over iceoryx2 shared
     /// memory) or `threads` of the learner (the single-process path; `ess train
@@ -820,7 +821,11 @@ fn finite_pos(key: &str, v: f64) -> Result<(), ConfigError> {
 
 impl TrainConfig {
     /// Checks every value once; the error names the first key out of range.
-    pub fn check(self) -> Result<CheckedConfig, ConfigError> {
+    pub fn check(mut self) -> Result<CheckedConfig, ConfigError> {
+        if self.run.actors == 0 {
+            self.run.actors = 1;
+            self.run.transport = ActorTransport::Threads;
+        }
         let e = &self.env;
         range(
             !e.name.is_empty(),
@@ -1001,10 +1006,10 @@ impl TrainConfig {
             "must be >= 1",
         )?;
         range(
-            (1..=256).contains(&r.actors),
+            r.actors <= 256,
             "run.actors",
             r.actors,
-            "must be in 1..=256",
+            "must be in 0..=256 (0: one actor thread in the learner)",
         )?;
         range(
             r.actor_timeout_s.is_finite() && (0.5..=3600.0).contains(&r.actor_timeout_s),

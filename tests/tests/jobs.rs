@@ -784,3 +784,51 @@ async fn assert_reflection_serves_the_job_service(channel: Channel) {
         other => panic!("file_containing_symbol answered {other:?}"),
     }
 }
+
+/// Hand-found: `ess train --actors 0` worked but `ess job submit --set run.actors=0` was
+/// refused ("needs run.transport"); 0 now means one actor thread wherever it is set.
+/// Also hand-found: the server's log, redirected to a file, carried ANSI colour codes.
+#[test]
+fn run_actors_0_is_accepted_by_job_submit_and_a_log_file_has_no_colour_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(&dir.path().join("data"), &[]);
+    let mut args = vec!["submit".to_string(), "--json".into(), "--watch".into()];
+    args.extend(set_flags(&tiny(2, 0)));
+    args.extend(["--set".to_string(), "run.actors=0".into()]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = server.job(&args);
+    assert!(o.status.success(), "{}", out(&o));
+    let last: serde_json::Value = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .last()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .unwrap();
+    assert_eq!(last["job"]["state"], "SUCCEEDED", "{last}");
+    let run_dir = PathBuf::from(last["job"]["run_dir"].as_str().unwrap());
+    let config = std::fs::read_to_string(run_dir.join("config.toml")).unwrap();
+    assert!(config.contains("transport = \"threads\""), "{config}");
+    let log = server.stderr();
+    assert!(
+        log.contains("INFO"),
+        "the server logged nothing at info: {log}"
+    );
+    assert!(
+        !log.contains('\u{1b}'),
+        "escape codes in a log file: {log:?}"
+    );
+}
+
+/// Hand-found: an empty `ESS_TOKEN_FILE` was read as the path "" (exit 2); it now counts
+/// as unset, as an empty `ESS_SERVER` does.
+#[test]
+fn an_empty_token_file_variable_counts_as_unset() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(&dir.path().join("data"), &[]);
+    let o = Command::new(ess_bin())
+        .args(["job", "--server", &server.url(), "list", "--json"])
+        .env("ESS_TOKEN_FILE", "")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", out(&o));
+    assert_eq!(json(&o), serde_json::json!([]));
+}

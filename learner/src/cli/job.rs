@@ -93,16 +93,22 @@ pub fn parse_state(s: &str) -> Result<ess_proto::pb::JobState> {
     })
 }
 
+/// An environment variable's value; an empty one counts as unset (`ESS_TOKEN_FILE=`
+/// clears a default rather than naming the file "").
+fn env_set(name: &str) -> Option<std::ffi::OsString> {
+    std::env::var_os(name).filter(|v| !v.is_empty())
+}
+
 pub async fn job(a: JobArgs) -> Result<()> {
     use ess_learner::control::client::{self, event_json, job_detail, job_json, job_line};
     use ess_proto::pb;
     let server = a
         .server
-        .or_else(|| std::env::var("ESS_SERVER").ok())
+        .or_else(|| env_set("ESS_SERVER").and_then(|v| v.into_string().ok()))
         .unwrap_or_else(|| format!("http://{}", ess_learner::control::serve::DEFAULT_LISTEN));
     let token_file = a
         .token_file
-        .or_else(|| std::env::var_os("ESS_TOKEN_FILE").map(PathBuf::from));
+        .or_else(|| env_set("ESS_TOKEN_FILE").map(PathBuf::from));
     let token = token_file
         .as_deref()
         .map(client::read_token_file)

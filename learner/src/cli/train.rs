@@ -113,10 +113,8 @@ impl Progress for CliProgress {
 
 pub fn train(mut args: TrainArgs) -> Result<()> {
     match args.actors {
-        Some(0) => {
-            args.config.set.push("run.actors=1".into());
-            args.config.set.push("run.transport=\"threads\"".into());
-        }
+        // Config checking turns 0 into one actor thread (`run.actors` docs).
+        Some(0) => args.config.set.push("run.actors=0".into()),
         Some(n) => {
             args.config.set.push(format!("run.actors={n}"));
             args.config.set.push("run.transport=\"processes\"".into());
