@@ -1,8 +1,8 @@
 //! Helpers for the cross-process tests in `tests/tests/`: they run the real `ess`
 //! binary (built by `make test` before the tests) and check what it prints and writes.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
 
 /// Path of the `ess` binary: `$ESS_BIN`, else the one beside this test executable's
 /// profile directory (`target/<profile>/ess`).
@@ -113,3 +113,36 @@ pub const SMOKE: &[&str] = &[
     "--set",
     "run.torch_threads=1",
 ];
+
+/// Starts `ess serve --listen 127.0.0.1:0 ARGS` (stdout piped, stderr into
+/// `stderr_path`, `RUST_LOG=info`) and reads the bound address from its first line.
+pub fn start_serve(args: &[&std::ffi::OsStr], stderr_path: &Path) -> (Child, String) {
+    use std::io::{BufRead, BufReader};
+    let mut child = Command::new(ess_bin())
+        .args(["serve", "--listen", "127.0.0.1:0"])
+        .args(args)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(std::fs::File::create(stderr_path).expect("creating the server's log"))
+        .spawn()
+        .expect("spawning ess serve");
+    let mut line = String::new();
+    let stdout = child.stdout.take().expect("piped stdout");
+    BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("reading the server's first line");
+    let addr = line
+        .trim()
+        .strip_prefix("listening on ")
+        .map(str::to_string);
+    match addr {
+        Some(a) => (child, a),
+        None => {
+            let _ = child.kill();
+            panic!(
+                "first line `{line}`; stderr: {}",
+                std::fs::read_to_string(stderr_path).unwrap_or_default()
+            )
+        }
+    }
+}

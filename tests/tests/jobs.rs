@@ -4,10 +4,10 @@
 
 use ess_proto::pb;
 use ess_proto::pb::job_service_client::JobServiceClient;
-use ess_tests::{children_of, ess_bin, is_running, wait_gone};
-use std::io::{BufRead, BufReader};
+use ess_tests::{children_of, ess_bin, is_running, start_serve, wait_gone};
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
 use tonic::Code;
 use tonic::transport::Channel;
@@ -66,29 +66,9 @@ struct Server {
 impl Server {
     fn start(data: &Path, extra: &[&str]) -> Server {
         let stderr_path = data.with_extension("stderr");
-        let mut child = Command::new(ess_bin())
-            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
-            .arg(data)
-            .args(extra)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::piped())
-            .stderr(std::fs::File::create(&stderr_path).unwrap())
-            .spawn()
-            .expect("spawning ess serve");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let addr = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| {
-                panic!(
-                    "first line `{line}`; stderr: {}",
-                    std::fs::read_to_string(&stderr_path).unwrap_or_default()
-                )
-            })
-            .to_string();
+        let mut args: Vec<&OsStr> = vec!["--data-dir".as_ref(), data.as_os_str()];
+        args.extend(extra.iter().map(OsStr::new));
+        let (child, addr) = start_serve(&args, &stderr_path);
         Server {
             child,
             addr,
@@ -445,6 +425,7 @@ async fn calls_without_the_right_token_are_unauthenticated() {
     // So does reflection (what grpcurl and other generic clients discover the API
     // with): it lists JobService and serves the file declaring it.
     assert_reflection_serves_the_job_service(channel.clone()).await;
+    assert_v1alpha_reflection_lists_the_job_service(channel.clone()).await;
     // The CLI: the token file works; a wrong one is an input error naming the code.
     let bad = dir.path().join("bad");
     std::fs::write(&bad, "nope").unwrap();
@@ -456,7 +437,7 @@ async fn calls_without_the_right_token_are_unauthenticated() {
 }
 
 #[test]
-fn serve_refuses_an_empty_token_file_and_an_open_remote_listener() {
+fn serve_refuses_an_empty_token_file_and_a_plain_text_remote_listener() {
     let dir = tempfile::tempdir().unwrap();
     let tok = dir.path().join("token");
     std::fs::write(&tok, "  \n").unwrap();
@@ -477,7 +458,7 @@ fn serve_refuses_an_empty_token_file_and_an_open_remote_listener() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2), "{}", out(&o));
     assert!(
-        String::from_utf8_lossy(&o.stderr).contains("--token-file"),
+        String::from_utf8_lossy(&o.stderr).contains("--tls-cert"),
         "{}",
         out(&o)
     );
@@ -721,6 +702,31 @@ async fn the_server_stops_its_jobs_on_sigterm_and_leaves_no_process_behind() {
     assert!(j.error.contains("server exited"), "{}", j.error);
     assert!(children_of(server.pid()).is_empty());
     assert!(is_running(server.pid()));
+}
+
+/// `grpc.reflection.v1alpha`, which older tools still ask for, lists the services too.
+async fn assert_v1alpha_reflection_lists_the_job_service(channel: Channel) {
+    use tonic_reflection::pb::v1alpha::ServerReflectionRequest;
+    use tonic_reflection::pb::v1alpha::server_reflection_client::ServerReflectionClient;
+    use tonic_reflection::pb::v1alpha::server_reflection_request::MessageRequest;
+    use tonic_reflection::pb::v1alpha::server_reflection_response::MessageResponse;
+    let req = ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(MessageRequest::ListServices(String::new())),
+    };
+    let mut stream = ServerReflectionClient::new(channel)
+        .server_reflection_info(tokio_stream::iter(vec![req]))
+        .await
+        .expect("v1alpha reflection call")
+        .into_inner();
+    let answer = stream.message().await.expect("v1alpha answer");
+    match answer.and_then(|a| a.message_response) {
+        Some(MessageResponse::ListServicesResponse(l)) => {
+            let names: Vec<&str> = l.service.iter().map(|s| s.name.as_str()).collect();
+            assert!(names.contains(&"ess.v1.JobService"), "{names:?}");
+        }
+        other => panic!("v1alpha list_services answered {other:?}"),
+    }
 }
 
 /// One reflection stream: `list_services` names `ess.v1.JobService`, and

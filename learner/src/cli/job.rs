@@ -13,6 +13,17 @@ pub struct JobArgs {
     /// File holding the server's bearer token (default: $ESS_TOKEN_FILE, if set).
     #[arg(long, global = true)]
     token_file: Option<PathBuf>,
+    /// With an https:// server: PEM file of the CA that signed the server's certificate
+    /// (default: $ESS_TLS_CA, else the system's trusted roots).
+    #[arg(long, global = true)]
+    tls_ca: Option<PathBuf>,
+    /// PEM certificate (chain) this client presents, for a server that asks for one
+    /// (`ess serve --tls-client-ca`); default: $ESS_TLS_CERT. Needs --tls-key.
+    #[arg(long, global = true)]
+    tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert (default: $ESS_TLS_KEY).
+    #[arg(long, global = true)]
+    tls_key: Option<PathBuf>,
     /// Print JSON (one object per line for `watch`) instead of text.
     #[arg(long, global = true)]
     json: bool,
@@ -65,7 +76,16 @@ pub enum JobCmd {
 /// A failed call as an error: the caller's fault (exit 2) or the server's (exit 1).
 pub fn status_err(s: tonic::Status) -> anyhow::Error {
     use tonic::Code;
-    let msg = format!("{:?}: {}", s.code(), s.message());
+    let mut msg = format!("{:?}: {}", s.code(), s.message());
+    // A transport failure's reason (a refused client certificate, say) is in its causes.
+    if let Some(cause) = std::error::Error::source(&s) {
+        let chain = ess_learner::control::client::error_chain(cause);
+        if chain.starts_with(s.message()) {
+            msg = format!("{:?}: {chain}", s.code());
+        } else if !msg.contains(&chain) {
+            msg = format!("{msg}: {chain}");
+        }
+    }
     match s.code() {
         Code::InvalidArgument
         | Code::NotFound
@@ -99,15 +119,39 @@ fn env_set(name: &str) -> Option<std::ffi::OsString> {
     std::env::var_os(name).filter(|v| !v.is_empty())
 }
 
+/// The client's TLS settings: only for an https:// server (an http:// one given TLS
+/// files is an input error rather than a silent plain-text connection).
+fn client_tls(a: &JobArgs, server: &str) -> Result<Option<tonic::transport::ClientTlsConfig>> {
+    let pick = |flag: &Option<PathBuf>, var: &str| {
+        flag.clone().or_else(|| env_set(var).map(PathBuf::from))
+    };
+    let ca = pick(&a.tls_ca, "ESS_TLS_CA");
+    let cert = pick(&a.tls_cert, "ESS_TLS_CERT");
+    let key = pick(&a.tls_key, "ESS_TLS_KEY");
+    if !server.starts_with("https://") {
+        if a.tls_ca.is_some() || a.tls_cert.is_some() || a.tls_key.is_some() {
+            return Err(input_err(format!(
+                "--tls-ca/--tls-cert/--tls-key need an https:// server, not `{server}`"
+            )));
+        }
+        return Ok(None);
+    }
+    ess_learner::control::tls::client_config(ca.as_deref(), cert.as_deref(), key.as_deref())
+        .map(Some)
+        .map_err(input_err)
+}
+
 pub async fn job(a: JobArgs) -> Result<()> {
     use ess_learner::control::client::{self, event_json, job_detail, job_json, job_line};
     use ess_proto::pb;
     let server = a
         .server
+        .clone()
         .or_else(|| env_set("ESS_SERVER").and_then(|v| v.into_string().ok()))
         .unwrap_or_else(|| format!("http://{}", ess_learner::control::serve::DEFAULT_LISTEN));
     let token_file = a
         .token_file
+        .clone()
         .or_else(|| env_set("ESS_TOKEN_FILE").map(PathBuf::from));
     let token = token_file
         .as_deref()
@@ -127,7 +171,8 @@ pub async fn job(a: JobArgs) -> Result<()> {
         JobCmd::Submit { config, .. } => Some(job_spec(config)?),
         _ => None,
     };
-    let mut c = client::connect(&server, token.as_deref()).await?;
+    let tls = client_tls(&a, &server)?;
+    let mut c = client::connect(&server, token.as_deref(), tls).await?;
     let watch_id = match a.cmd {
         JobCmd::Submit { watch, .. } => {
             let j = c

@@ -8,13 +8,25 @@ use std::path::PathBuf;
 #[derive(Args)]
 pub struct ServeArgs {
     /// Address to listen on (IP:PORT; port 0 picks a free one). The bound address is
-    /// printed as the first line of stdout. A non-loopback address needs --token-file.
+    /// printed as the first line of stdout. A non-loopback address needs TLS
+    /// (--tls-cert, --tls-key) and a way to authenticate clients (--token-file and/or
+    /// --tls-client-ca).
     #[arg(long, default_value = ess_learner::control::serve::DEFAULT_LISTEN)]
     listen: String,
     /// File holding the bearer token every JobService call must carry
     /// (`authorization: Bearer <token>`). Without it, calls are not authenticated.
     #[arg(long)]
     token_file: Option<PathBuf>,
+    /// PEM certificate (chain) of this server: serve over TLS (with --tls-key).
+    #[arg(long)]
+    tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long)]
+    tls_key: Option<PathBuf>,
+    /// PEM CA certificate(s): every client must present a certificate they signed
+    /// (mutual TLS); others are refused at the handshake.
+    #[arg(long)]
+    tls_client_ca: Option<PathBuf>,
     /// Data directory: one `jobs/<id>/` per job (record, config, log, run outputs).
     #[arg(long, default_value = "ess-jobs")]
     data_dir: PathBuf,
@@ -25,6 +37,46 @@ pub struct ServeArgs {
     /// Seconds a shutting-down server waits for its stopped jobs before killing them.
     #[arg(long, default_value_t = 600.0)]
     stop_grace_s: f64,
+}
+
+/// The server's TLS settings, checked as tonic will use them (a key that does not match
+/// its certificate is refused here, naming both files, not at the first handshake).
+fn server_tls(a: &ServeArgs) -> Result<Option<tonic::transport::ServerTlsConfig>> {
+    let tls = ess_learner::control::tls::server_config(
+        a.tls_cert.as_deref(),
+        a.tls_key.as_deref(),
+        a.tls_client_ca.as_deref(),
+    )
+    .map_err(input_err)?;
+    if let (Some(t), Some(cert), Some(key)) = (&tls, &a.tls_cert, &a.tls_key) {
+        tonic::transport::Server::builder()
+            .tls_config(t.clone())
+            .map_err(|e| {
+                input_err(format!(
+                    "--tls-cert {} / --tls-key {}: {}",
+                    cert.display(),
+                    key.display(),
+                    ess_learner::control::client::error_chain(&e)
+                ))
+            })?;
+    }
+    Ok(tls)
+}
+
+/// How clients are checked, for the start-up line.
+fn auth_line(token: bool, tls: bool, client_ca: bool) -> String {
+    let transport = if tls {
+        "TLS"
+    } else {
+        "plain HTTP/2 (loopback only)"
+    };
+    let who = match (token, client_ca) {
+        (true, true) => "client certificate and bearer token required",
+        (false, true) => "client certificate required",
+        (true, false) => "bearer token required",
+        (false, false) => "no authentication",
+    };
+    format!("{transport}, {who}")
 }
 
 pub async fn serve(a: ServeArgs) -> Result<()> {
@@ -42,15 +94,18 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
         .map(ess_learner::control::client::read_token_file)
         .transpose()
         .map_err(input_err)?;
+    let tls = server_tls(&a)?;
     if !addr.ip().is_loopback() {
-        if token.is_none() {
+        if tls.is_none() {
             return Err(input_err(format!(
-                "--listen {addr} is reachable from other machines: give --token-file so that only token holders control jobs"
+                "--listen {addr} is reachable from other machines: give --tls-cert and --tls-key so that tokens and job data do not cross the network in plain text"
             )));
         }
-        eprintln!(
-            "ess serve: WARNING: listening on {addr} without TLS: the token and job data cross the network in plain text"
-        );
+        if token.is_none() && a.tls_client_ca.is_none() {
+            return Err(input_err(format!(
+                "--listen {addr} is reachable from other machines: give --token-file or --tls-client-ca so that only known clients control jobs"
+            )));
+        }
     }
     let cores = match a.cores {
         Some(0) => return Err(input_err("--cores must be at least 1")),
@@ -78,11 +133,7 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
         "ess serve: {} cores for jobs, data in {}, {}",
         cores,
         a.data_dir.display(),
-        if token.is_some() {
-            "bearer token required"
-        } else {
-            "no token (loopback only)"
-        }
+        auth_line(token.is_some(), tls.is_some(), a.tls_client_ca.is_some())
     );
     let cfg = ServeConfig {
         manager: ManagerConfig {
@@ -92,6 +143,7 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
             stop_grace: std::time::Duration::from_secs_f64(a.stop_grace_s),
         },
         token,
+        tls,
     };
     ess_learner::control::serve::serve(listener, cfg, shutdown_signal()).await
 }

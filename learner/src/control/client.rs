@@ -71,22 +71,55 @@ pub fn read_token_file(path: &Path) -> Result<String, TokenFileError> {
     Ok(token.to_string())
 }
 
-/// Connects to `url` (`http://HOST:PORT`), sending `token` with every call.
-pub async fn connect(url: &str, token: Option<&str>) -> anyhow::Result<Client> {
+/// Connects to `url` (`http://HOST:PORT`, or `https://HOST:PORT` with `tls`), sending
+/// `token` with every call. TLS settings with an `http://` URL, or an `https://` URL
+/// without them, are refused before connecting.
+pub async fn connect(
+    url: &str,
+    token: Option<&str>,
+    tls: Option<tonic::transport::ClientTlsConfig>,
+) -> anyhow::Result<Client> {
     use anyhow::Context;
     let header = token
         .map(|t| format!("Bearer {t}").parse())
         .transpose()
         .context("the token is not a valid header value")?;
-    let channel = tonic::transport::Endpoint::from_shared(url.to_string())
-        .with_context(|| format!("bad server URL `{url}`"))?
+    let mut endpoint = tonic::transport::Endpoint::from_shared(url.to_string())
+        .with_context(|| format!("bad server URL `{url}`"))?;
+    let https = endpoint.uri().scheme_str() == Some("https");
+    match (https, tls) {
+        (true, Some(tls)) => {
+            endpoint = endpoint
+                .tls_config(tls)
+                .with_context(|| format!("TLS settings for {url}"))?;
+        }
+        (true, None) => anyhow::bail!("{url}: an https:// server needs TLS settings"),
+        (false, Some(_)) => anyhow::bail!("{url}: TLS settings need an https:// URL"),
+        (false, None) => {}
+    }
+    let channel = endpoint
         .connect()
         .await
-        .with_context(|| format!("cannot connect to {url} (is `ess serve` running?)"))?;
+        .map_err(|e| anyhow::anyhow!("cannot connect to {url}: {}", error_chain(&e)))?;
     Ok(JobServiceClient::with_interceptor(
         channel,
         BearerToken { header },
     ))
+}
+
+/// An error and its causes on one line (a failed TLS handshake's reason sits three
+/// levels under tonic's "transport error").
+pub fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut parts = vec![e.to_string()];
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        let s = c.to_string();
+        if !parts.iter().any(|p| p.contains(&s)) {
+            parts.push(s);
+        }
+        cur = c.source();
+    }
+    parts.join(": ")
 }
 
 /// A state's short name (`RUNNING`).

@@ -4,8 +4,11 @@
 //! - `ess.v1.JobService` over a [`Manager`] (behind the bearer-token check when a
 //!   token is configured: `authorization: Bearer <token>`, compared in constant time);
 //! - standard gRPC health (`grpc.health.v1.Health`: `ess.v1.JobService` is SERVING
-//!   while the server runs) and reflection (`grpc.reflection.v1`), both without a
-//!   token, so `grpcurl -plaintext HOST:PORT list` works.
+//!   while the server runs) and reflection (`grpc.reflection.v1`, and `v1alpha` for the
+//!   tools that still ask for it), both without a token, so `grpcurl -plaintext
+//!   HOST:PORT list` works;
+//! - over TLS when [`ServeConfig::tls`] is set ([`crate::control::tls`]); a client
+//!   speaking plain HTTP/2 to it fails at the handshake.
 //!
 //! When the shutdown future resolves, health turns NOT_SERVING, running jobs are stopped
 //! gracefully ([`Manager::shutdown`]) and the server returns.
@@ -29,6 +32,8 @@ pub struct ServeConfig {
     pub manager: ManagerConfig,
     /// The bearer token every JobService call must carry; `None`: no auth.
     pub token: Option<String>,
+    /// TLS (identity, optional client CA); `None`: plain HTTP/2.
+    pub tls: Option<tonic::transport::ServerTlsConfig>,
 }
 
 /// The JobService implementation: a thin layer over the [`Manager`].
@@ -149,11 +154,17 @@ pub async fn serve(
     let manager = Manager::open(cfg.manager).context("opening the data dir")?;
     let (health, health_svc) = tonic_health::server::health_reporter();
     health.set_serving::<JobServiceServer<JobSvc>>().await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(ess_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    let reflection = || {
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(ess_proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    };
+    let reflection_v1 = reflection()
         .build_v1()
         .context("building the reflection service")?;
+    let reflection_v1alpha = reflection()
+        .build_v1alpha()
+        .context("building the reflection service (v1alpha)")?;
     let jobs = JobServiceServer::with_interceptor(
         JobSvc {
             manager: manager.clone(),
@@ -169,9 +180,14 @@ pub async fn serve(
             manager.shutdown().await;
         }
     };
-    tonic::transport::Server::builder()
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = cfg.tls {
+        builder = builder.tls_config(tls).context("TLS certificate and key")?;
+    }
+    builder
         .add_service(health_svc)
-        .add_service(reflection)
+        .add_service(reflection_v1)
+        .add_service(reflection_v1alpha)
         .add_service(jobs)
         .serve_with_incoming_shutdown(TcpListenerStream::new(listener), signal)
         .await
