@@ -33,9 +33,11 @@
 //! `unlabeled.mode` is -1 where nobody knows the mode (an episode imported without a
 //! label, [`UNKNOWN_MODE`] in memory); labels are always known.
 //!
-//! Header metadata: `format = "ess-demos"`, `format_version = "1"`, `meta` = the
-//! [`DemoMeta`] as JSON. [`Demos::load`] validates all of it and names the offending
-//! tensor, row, field or value (and the file) in its error.
+//! Header metadata: `format = "ess-demos"`, `format_version = "2"`, `meta` = the
+//! [`DemoMeta`] as JSON, and `ess.sha256`, the checksums of every tensor and of the other
+//! entries ([`ess_proto::checksum`]). [`Demos::load`] validates all of it and names the
+//! offending tensor, row, field or value (and the file) in its error. Version 1 files
+//! (written before the checksums) still load, unverified.
 
 use std::borrow::Cow;
 use std::collections::{BTreeSet, HashMap};
@@ -51,8 +53,10 @@ use crate::env::{EnvError, ScriptedExpert, make_env};
 
 /// Value of the `format` header key.
 pub const FORMAT: &str = "ess-demos";
-/// The only supported `format_version`.
-pub const FORMAT_VERSION: u32 = 1;
+/// The `format_version` this build writes (sealed with checksums).
+pub const FORMAT_VERSION: u32 = 2;
+/// The version before checksums: still read, without them.
+const UNSEALED_VERSION: u32 = 1;
 /// The in-memory mode of an unlabeled transition whose mode nobody knows (an imported
 /// episode without a label); stored as `-1` in the file, only in the unlabeled split.
 pub const UNKNOWN_MODE: u32 = u32::MAX;
@@ -295,6 +299,14 @@ pub enum DemoError {
         found: String,
         /// Version supported.
         supported: u32,
+    },
+    /// The content does not match its checksums (a flipped byte, a cut file).
+    #[error("{path}: {error}")]
+    Checksum {
+        /// File read.
+        path: PathBuf,
+        /// Which tensor (or the metadata).
+        error: ess_proto::checksum::ChecksumError,
     },
     /// The `meta` header key is not valid [`DemoMeta`] JSON.
     #[error("{path}: header meta is not valid DemoMeta JSON: {error}")]
@@ -664,7 +676,11 @@ impl Demos {
             path: path.to_owned(),
             reason,
         };
-        let meta_json = serde_json::to_string(&self.meta).map_err(|e| ser_err(e.to_string()))?;
+        let meta = DemoMeta {
+            format_version: FORMAT_VERSION,
+            ..self.meta.clone()
+        };
+        let meta_json = serde_json::to_string(&meta).map_err(|e| ser_err(e.to_string()))?;
         let mut raw = split_tensors(SPLITS[0], &self.unlabeled, &self.meta);
         raw.extend(split_tensors(SPLITS[1], &self.labeled, &self.meta));
         let mut views = Vec::with_capacity(raw.len());
@@ -678,7 +694,9 @@ impl Demos {
             path: file.tmp().to_owned(),
             error,
         })?;
-        safetensors::serialize_to_file(views, Some(header(meta_json)), file.tmp())
+        let mut header = header(meta_json);
+        ess_proto::checksum::seal(&mut header, views.iter().map(|(n, v)| (n.as_str(), v)));
+        safetensors::serialize_to_file(views, Some(header), file.tmp())
             .map_err(|e| ser_err(e.to_string()))?;
         file.commit()
             .map_err(|(path, error)| DemoError::Io { path, error })?;
@@ -720,13 +738,16 @@ impl Demos {
             });
         }
         let version = get("format_version")?;
-        if version.trim().parse::<u32>().ok() != Some(FORMAT_VERSION) {
+        let version_n = version.trim().parse::<u32>().ok();
+        if !matches!(version_n, Some(UNSEALED_VERSION | FORMAT_VERSION)) {
             return Err(DemoError::UnsupportedVersion {
                 path: p(),
                 found: version.clone(),
                 supported: FORMAT_VERSION,
             });
         }
+        ess_proto::checksum::verify(bytes, version_n == Some(UNSEALED_VERSION))
+            .map_err(|error| DemoError::Checksum { path: p(), error })?;
         let meta: DemoMeta =
             serde_json::from_str(get("meta")?).map_err(|e| DemoError::BadMeta {
                 path: p(),
@@ -777,7 +798,7 @@ fn validate_meta(meta: &DemoMeta, path: &Path) -> Result<(), DemoError> {
         value,
         reason,
     };
-    if meta.format_version != FORMAT_VERSION {
+    if !matches!(meta.format_version, UNSEALED_VERSION | FORMAT_VERSION) {
         return Err(DemoError::UnsupportedVersion {
             path: path.to_owned(),
             found: meta.format_version.to_string(),
@@ -1246,7 +1267,10 @@ mod tests {
                 .iter()
                 .map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).expect("view")))
                 .collect();
-            safetensors::serialize(views, Some(self.header.clone())).expect("serialize")
+            // Sealed as saved files are, so each test reaches the check it is about.
+            let mut header = self.header.clone();
+            ess_proto::checksum::seal(&mut header, views.iter().map(|(n, v)| (n.as_str(), v)));
+            safetensors::serialize(views, Some(header)).expect("serialize")
         }
 
         fn load_err(&self) -> String {

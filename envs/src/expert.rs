@@ -8,12 +8,14 @@
 //! observation normalisation it was trained with. Actions are `tanh(mean + std * n)`,
 //! `n ~ N(0, I)` (or `tanh(mean)` deterministically), exactly how it acted in training.
 //!
-//! ## File format (`format = "ess-expert"`, version 1)
+//! ## File format (`format = "ess-expert"`, version 2)
 //! A safetensors file with `f32` tensors `params` (the flat MLP parameters in
 //! [`ess_proto::MlpLayout`] order), `log_std` `[act_dim]`, `obs_mean` and `obs_std`
 //! `[obs_dim]`, and a JSON [`ExpertMeta`] under the header key `meta`: env name, mode,
 //! mode count, dims, layer sizes, how many zero inputs follow the observation (the
-//! trainer's unused eps/code slots), training steps and the final mean return.
+//! trainer's unused eps/code slots), training steps and the final mean return; and
+//! `ess.sha256`, the checksums of every tensor and of the other entries
+//! ([`ess_proto::checksum`]). Version 1 files (before checksums) still load, unverified.
 //! [`ExpertPolicy::load`] validates all of it and names the file and field on error;
 //! [`ExpertPolicy::check_fits`] refuses an expert of another env, mode or shape.
 //!
@@ -40,8 +42,10 @@ use crate::env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome};
 
 /// Value of the `format` header key.
 pub const FORMAT: &str = "ess-expert";
-/// The only supported `format_version`.
-pub const FORMAT_VERSION: u32 = 1;
+/// The `format_version` this build writes (sealed with checksums).
+pub const FORMAT_VERSION: u32 = 2;
+/// The version before checksums: still read, without them.
+const UNSEALED_VERSION: u32 = 1;
 
 /// What an expert file says about itself.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -231,13 +235,14 @@ impl ExpertPolicy {
             let view = TensorView::new(Dtype::F32, vec![*n], bytes).map_err(|e| e.to_string())?;
             views.push((*name, view));
         }
-        let header: HashMap<String, String> = [
+        let mut header: HashMap<String, String> = [
             ("format".to_owned(), FORMAT.to_owned()),
             ("format_version".to_owned(), FORMAT_VERSION.to_string()),
             ("meta".to_owned(), meta),
         ]
         .into_iter()
         .collect();
+        ess_proto::checksum::seal(&mut header, views.iter().map(|(n, v)| (*n, v)));
         safetensors::serialize(views, Some(header)).map_err(|e| e.to_string())
     }
 
@@ -279,11 +284,14 @@ impl ExpertPolicy {
             return Err(format!("header format = {format:?}, expected {FORMAT:?}"));
         }
         let version = get("format_version")?;
-        if version.trim().parse::<u32>().ok() != Some(FORMAT_VERSION) {
+        let version_n = version.trim().parse::<u32>().ok();
+        if !matches!(version_n, Some(UNSEALED_VERSION | FORMAT_VERSION)) {
             return Err(format!(
-                "unsupported format_version {version:?}; this build reads version {FORMAT_VERSION}"
+                "unsupported format_version {version:?}; this build reads versions {UNSEALED_VERSION} and {FORMAT_VERSION}"
             ));
         }
+        ess_proto::checksum::verify(bytes, version_n == Some(UNSEALED_VERSION))
+            .map_err(|e| e.to_string())?;
         let meta: ExpertMeta =
             serde_json::from_str(get("meta")?).map_err(|e| format!("header meta: {e}"))?;
         let read = |name: &str| -> Result<Vec<f32>, String> {

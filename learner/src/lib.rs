@@ -23,7 +23,8 @@
 //!
 //! Beside them: [`presets`] (the method presets, embedded), [`progress`] (`ess train
 //! --progress jsonl`), [`malloc`] (glibc settings that spare the learner's steps page
-//! faults). The `ess` binary (`main.rs`) only parses and dispatches; each subcommand is
+//! faults), [`tensor_file`] (every learner safetensors file, written and read back with
+//! checksums). The `ess` binary (`main.rs`) only parses and dispatches; each subcommand is
 //! in `cli/<name>.rs`.
 
 pub mod actors;
@@ -38,4 +39,5 @@ pub mod objective;
 pub mod presets;
 pub mod progress;
 pub mod runlog;
+pub mod tensor_file;
 pub mod train;

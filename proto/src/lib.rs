@@ -12,6 +12,7 @@
 //!
 //! This crate depends on nothing internal and never on tch or MuJoCo.
 
+pub mod checksum;
 pub mod chunk;
 pub mod config;
 pub mod mlp;

@@ -261,7 +261,7 @@ pub fn train_expert(
         let mode = if cfg.resume { cfg.mode } else { old.meta.mode };
         old.check_fits(&spec, mode, src)?;
         let state = state_path(src);
-        vs.load(&state)
+        crate::tensor_file::load_var_store(&mut vs, &state)
             .with_context(|| format!("loading training state {}", state.display()))?;
         let (m, s) = old.obs_stats();
         // Resume the normaliser as if from `trained_steps` observations.
@@ -392,7 +392,7 @@ pub fn train_expert(
         // Save every 10 iterations and at the end (the state file is what resumes).
         if it % 10 == 0 || env_steps >= cfg.steps || shutdown.load(Ordering::Relaxed) {
             let e = save(cfg, &spec, &ppo, &stats, env_steps, &recent)?;
-            vs.save(state_path(&cfg.out))?;
+            crate::tensor_file::save_var_store(&vs, &state_path(&cfg.out))?;
             csv.flush()?;
             expert = Some(e);
         }
@@ -402,7 +402,7 @@ pub fn train_expert(
         Some(e) => Ok(e),
         None => {
             let e = save(cfg, &spec, &ppo, &stats, env_steps, &recent)?;
-            vs.save(state_path(&cfg.out))?;
+            crate::tensor_file::save_var_store(&vs, &state_path(&cfg.out))?;
             Ok(e)
         }
     }

@@ -39,7 +39,7 @@ pub fn run_policy(out: &Path) -> Result<(PolicyWeights, CheckedConfig, std::path
     let mut nets = Nets::new(&cfg, dims)?;
     for (vs, name) in [(&mut nets.vs, "policy"), (&mut nets.prior_vs, "prior")] {
         let p = dir.join(format!("{name}.safetensors"));
-        vs.load(&p)
+        crate::tensor_file::load_var_store(vs, &p)
             .with_context(|| format!("loading {}", p.display()))?;
     }
     let p = &nets.ppo;

@@ -14,6 +14,13 @@
 //!   metrics row still waiting for its successor, and each actor's complete state
 //!   (random stream, observation, latents, [`ess_envs::Env::state`]) between two steps.
 //!
+//! Every `.safetensors` file carries the checksums of its tensors
+//! ([`crate::tensor_file`]), and `state.sha256` holds that of `state.json` (the format
+//! of `sha256sum`, so `sha256sum -c state.sha256` checks it by hand); loading refuses
+//! any mismatch naming the file (and tensor), so a flipped byte never resumes a
+//! different run. The files stay byte-for-byte reproducible (one metadata entry each:
+//! safetensors writes several in a random order). Format 2 (format 1 had no checksums).
+//!
 //! Floats in `state.json` round-trip exactly (serde_json's `float_roundtrip`). What is
 //! not saved is recomputed identically from the run's `config.toml`: the dataset and its
 //! normalisers, the behaviour classifier, and libtorch's random stream, which the
@@ -31,7 +38,9 @@ use std::path::{Path, PathBuf};
 use tch::{Tensor, nn};
 
 /// Version of the checkpoint layout; a checkpoint of another version is refused.
-pub const FORMAT: u32 = 1;
+pub const FORMAT: u32 = 2;
+/// The file holding `state.json`'s SHA-256, as `sha256sum` writes it.
+const STATE_SHA256: &str = "state.sha256";
 
 /// The variable stores, in file order.
 pub const STORES: [&str; 3] = ["policy", "prior", "disc"];
@@ -189,8 +198,7 @@ pub fn save(
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
     for (name, vs) in STORES.iter().zip(stores) {
         let p = tmp.join(format!("{name}.safetensors"));
-        vs.save(&p)
-            .with_context(|| format!("saving {}", p.display()))?;
+        crate::tensor_file::save_var_store(vs, &p).context("saving a checkpoint")?;
     }
     let mut tensors: Vec<(String, Tensor)> = Vec::new();
     state.adam_steps.clear();
@@ -204,10 +212,16 @@ pub fn save(
         state.adam_steps.insert(name.to_string(), steps);
     }
     let p = tmp.join("optim.safetensors");
-    Tensor::write_safetensors(&tensors, &p).with_context(|| format!("saving {}", p.display()))?;
-    let p = tmp.join("state.json");
-    std::fs::write(&p, serde_json::to_vec_pretty(state)?)
-        .with_context(|| format!("writing {}", p.display()))?;
+    crate::tensor_file::save(&p, &tensors, Default::default()).context("saving a checkpoint")?;
+    let state_json = serde_json::to_vec_pretty(state)?;
+    let sum = format!(
+        "{}  state.json\n",
+        crate::tensor_file::sha256_hex(&state_json)
+    );
+    for (name, bytes) in [(STATE_SHA256, sum.as_bytes()), ("state.json", &state_json)] {
+        let p = tmp.join(name);
+        std::fs::write(&p, bytes).with_context(|| format!("writing {}", p.display()))?;
+    }
     if dir.exists() {
         std::fs::remove_dir_all(&dir).with_context(|| format!("replacing {}", dir.display()))?;
     }
@@ -246,6 +260,16 @@ pub fn load(
 ) -> Result<TrainState> {
     let p = dir.join("state.json");
     let text = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+    let sum_path = dir.join(STATE_SHA256);
+    let sum = std::fs::read_to_string(&sum_path)
+        .with_context(|| format!("reading {}", sum_path.display()))?;
+    if sum.split_whitespace().next() != Some(&crate::tensor_file::sha256_hex(&text)) {
+        bail!(
+            "{}: does not match its checksum in {}: the checkpoint is corrupt",
+            p.display(),
+            sum_path.display()
+        );
+    }
     let state: TrainState =
         serde_json::from_slice(&text).with_context(|| format!("parsing {}", p.display()))?;
     if state.format != FORMAT {
@@ -257,15 +281,12 @@ pub fn load(
     }
     for (name, vs) in STORES.iter().zip(stores) {
         let p = dir.join(format!("{name}.safetensors"));
-        vs.load(&p).with_context(|| {
+        crate::tensor_file::load_var_store(vs, &p).with_context(|| {
             format!("loading {} (a checkpoint of another config?)", p.display())
         })?;
     }
     let p = dir.join("optim.safetensors");
-    let mut tensors: BTreeMap<String, Tensor> = Tensor::read_safetensors(&p)
-        .with_context(|| format!("reading {}", p.display()))?
-        .into_iter()
-        .collect();
+    let (mut tensors, _) = crate::tensor_file::load(&p).context("loading a checkpoint")?;
     for (name, opt) in STORES.iter().zip(opts) {
         let steps = state
             .adam_steps

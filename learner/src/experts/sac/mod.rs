@@ -316,22 +316,18 @@ fn save_state(sac: &Sac, stats: &RunningStats, path: &std::path::Path) -> Result
     write_via_tmp(&named, path, "SAC state")
 }
 
-/// Writes `named` to `path` atomically ([`ess_envs::AtomicFile`]), so a stop mid-write
-/// leaves the old file; errors name `what` and the file.
+/// Writes `named` to `path` atomically and with checksums ([`crate::tensor_file`]), so a
+/// stop mid-write leaves the old file; errors name `what` and the file.
 fn write_via_tmp<S: AsRef<str>>(named: &[(S, Tensor)], path: &Path, what: &str) -> Result<()> {
-    let file = ess_envs::AtomicFile::new(path);
-    Tensor::write_safetensors(named, file.tmp())
-        .with_context(|| format!("writing {what} {}", file.tmp().display()))?;
-    file.commit()
-        .map_err(|(p, e)| anyhow::Error::new(e).context(format!("writing {what} {}", p.display())))
+    crate::tensor_file::save(path, named, HashMap::new()).with_context(|| format!("writing {what}"))
 }
 
-/// Every tensor of the safetensors file at `path` by name; an error says "reading `what`".
+/// Every tensor of the safetensors file at `path` by name, checked against its
+/// checksums; an error says "reading `what`".
 fn read_named(path: &Path, what: &str) -> Result<HashMap<String, Tensor>> {
-    Ok(Tensor::read_safetensors(path)
+    Ok(crate::tensor_file::load(path)
         .with_context(|| format!("reading {what}"))?
-        .into_iter()
-        .collect())
+        .0)
 }
 
 /// Loads what [`save_state`] wrote into `sac` and `stats`; names the file and the
@@ -779,12 +775,13 @@ mod tests {
             "{err}"
         );
         // A state file without SAC tensors (e.g. PPO's) is refused too.
-        Tensor::write_safetensors(
+        write_via_tmp(
             &[(
                 "pi/mean/l0/weight",
                 Tensor::zeros([2], (Kind::Float, tch::Device::Cpu)),
             )],
             &path,
+            "test",
         )
         .unwrap();
         let err = format!("{:#}", load_state(&other, &mut back, &path).unwrap_err());
@@ -826,9 +823,10 @@ mod tests {
             );
         }
         // A file that is not a replay (a state file, say) names the missing tensor.
-        Tensor::write_safetensors(
+        write_via_tmp(
             &[("x", Tensor::zeros([2], (Kind::Float, tch::Device::Cpu)))],
             &path,
+            "test",
         )
         .unwrap();
         let err = format!("{:#}", Replay::load(&path, 8, 4, 2).err().unwrap());
