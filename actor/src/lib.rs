@@ -11,6 +11,7 @@ pub mod logging;
 pub mod policy;
 pub mod rollout;
 pub mod shm;
+pub mod state_msg;
 pub mod transport;
 
 pub use ess_proto::Mlp;

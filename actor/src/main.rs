@@ -38,6 +38,10 @@ struct Args {
     /// Exit when this process is no longer our parent (the learner died).
     #[arg(long)]
     parent_pid: Option<u32>,
+    /// Start from the state in this file (a checkpoint's, written by the learner when
+    /// resuming; `ess_actor::state_msg`) instead of a fresh episode.
+    #[arg(long, value_name = "FILE")]
+    restore_state: Option<std::path::PathBuf>,
     /// Build the env without its scripted/trained expert (`ess experts train`).
     #[arg(long)]
     plain_env: bool,
@@ -71,6 +75,9 @@ fn main() -> Result<()> {
             .with_task_reward(k)
             .with_context(|| format!("--task-mode {k}"))?;
     }
+    if let Some(p) = &a.restore_state {
+        restore(&mut worker, p, a.index)?;
+    }
     let settings = ActorSettings {
         run_id: a.run_id.clone(),
         index: a.index,
@@ -83,4 +90,27 @@ fn main() -> Result<()> {
     let mut eval_env = || build(&a).map_err(|e| format!("{e:#}"));
     run_actor(&settings, &mut worker, &mut eval_env)
         .with_context(|| format!("actor {} of run {}", a.index, a.run_id))
+}
+
+/// Restores `worker` from a state file the learner wrote for actor `index`.
+fn restore(worker: &mut Worker, path: &std::path::Path, index: usize) -> Result<()> {
+    let bytes =
+        std::fs::read(path).with_context(|| format!("--restore-state {}", path.display()))?;
+    let words: Vec<u64> = bytes
+        .chunks_exact(8)
+        .map(|c| u64::from_le_bytes(c.try_into().unwrap_or_default()))
+        .collect();
+    let m = ess_actor::state_msg::decode(&words)
+        .with_context(|| format!("--restore-state {}", path.display()))?;
+    if m.actor as usize != index || bytes.len() % 8 != 0 {
+        anyhow::bail!(
+            "--restore-state {}: a state of actor {} ({} bytes) for actor {index}",
+            path.display(),
+            m.actor,
+            bytes.len()
+        );
+    }
+    worker
+        .restore(&m.state)
+        .with_context(|| format!("--restore-state {}", path.display()))
 }

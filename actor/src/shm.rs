@@ -116,7 +116,8 @@ fn ipc<'a, E: std::fmt::Debug>(
 pub struct Request {
     /// Actor index this request is for.
     pub actor: u32,
-    /// [`Request::COLLECT`], [`Request::EVALUATE`] or [`Request::STOP`].
+    /// [`Request::COLLECT`], [`Request::EVALUATE`], [`Request::SNAPSHOT`] or
+    /// [`Request::STOP`].
     pub kind: u32,
     /// Increases with every rollout or evaluation job (resends keep it).
     pub request_id: u64,
@@ -143,6 +144,9 @@ impl Request {
     /// `eps_bits`, `seed` and publish it as one episode sample
     /// ([`ess_proto::shm::write_episode`]) on the `chunks` service.
     pub const EVALUATE: u32 = 2;
+    /// Publish this actor's [`crate::WorkerState`] as one sample on the `chunks`
+    /// service ([`crate::state_msg`]); needs no weights.
+    pub const SNAPSHOT: u32 = 3;
 }
 
 /// An actor's heartbeat.
@@ -552,7 +556,11 @@ pub fn run_actor(
                 return Ok(());
             }
             if r.actor == ports.index && r.request_id > ports.last_done {
-                pending = Some(r);
+                if r.kind == Request::SNAPSHOT {
+                    publish_state(&mut ports, worker, &r, hash)?;
+                } else {
+                    pending = Some(r);
+                }
             }
         }
         let ready = match (&pending, &policy) {
@@ -589,6 +597,29 @@ pub fn run_actor(
             Err(e) => return Err(ipc("wait", "wake-actors")(e)),
         }
     }
+}
+
+/// Answers a [`Request::SNAPSHOT`]: the worker's state as one `chunks` sample.
+fn publish_state(
+    ports: &mut ActorPorts,
+    worker: &Worker,
+    r: &Request,
+    hash: u64,
+) -> Result<(), ShmTransportError> {
+    let words = crate::state_msg::encode(&crate::state_msg::StateMsg {
+        run_id_hash: hash,
+        actor: ports.index,
+        request_id: r.request_id,
+        state: worker.snapshot(),
+    });
+    let mut sample = ports
+        .chunks
+        .loan_slice(words.len())
+        .map_err(ipc("loan", "chunks"))?;
+    sample.payload_mut().copy_from_slice(&words);
+    sample.send().map_err(ipc("send", "chunks"))?;
+    ports.last_done = r.request_id;
+    ports.beat(Status::IDLE)
 }
 
 fn collect_and_publish(

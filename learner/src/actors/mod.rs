@@ -15,9 +15,10 @@
 //! actor the next job, gather the episodes at their job's index, restart a dead or silent
 //! actor and ask it again for the job it held.
 //!
-//! Checkpoints: [`RolloutSource::snapshot`] and [`RolloutSource::restore`] are refused
-//! (no transport message carries an actor's state yet), so a resumed run with actor
-//! processes starts fresh episodes and is not bit-identical to an uninterrupted one.
+//! Checkpoints: [`RolloutSource::snapshot`] asks every actor for its state (a
+//! `SNAPSHOT` request answered on the `chunks` service), and [`RolloutSource::restore`]
+//! restarts every actor from a state file ([`state`]), so a resumed run with actor
+//! processes continues their episodes and is bit-identical to an uninterrupted one.
 //!
 //! An actor's standard error passes through the learner's, and the error naming an actor
 //! that exited quotes its last lines (the loader's message behind exit status 127, say).
@@ -37,6 +38,7 @@
 //! no longer bit-identical to one without.
 
 mod eval;
+mod state;
 mod stderr;
 
 use ess_actor::shm::{
@@ -283,7 +285,7 @@ impl ShmActors {
             cfg,
         };
         for i in 0..n {
-            let p = me.spawn(i, 0)?;
+            let p = me.spawn(i, 0, None)?;
             me.procs.push(p);
         }
         Ok(me)
@@ -299,7 +301,14 @@ impl ShmActors {
         &self.cfg.run_id
     }
 
-    fn spawn(&self, index: usize, restarts: u32) -> Result<Proc, ShmActorsError> {
+    /// Starts actor `index` (its `restarts`-th replacement), from the state in `restore`
+    /// when given.
+    fn spawn(
+        &self,
+        index: usize,
+        restarts: u32,
+        restore: Option<&std::path::Path>,
+    ) -> Result<Proc, ShmActorsError> {
         // A restarted actor must not replay its predecessor's episodes.
         let seed =
             self.cfg.seeds[index] ^ (u64::from(restarts)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
@@ -309,6 +318,9 @@ impl ShmActors {
         }
         if let Some(k) = self.cfg.task_mode {
             cmd.arg("--task-mode").arg(k.to_string());
+        }
+        if let Some(p) = restore {
+            cmd.arg("--restore-state").arg(p);
         }
         let mut child = cmd
             .arg("--run-id")
@@ -400,7 +412,7 @@ impl ShmActors {
         // Its ports stay registered until the dead node is cleaned up.
         self.node.try_cleanup_dead_nodes();
         let fresh = self
-            .spawn(i, restarts)
+            .spawn(i, restarts, None)
             .map_err(|e| gone(i, format!("restarting: {e}")))?;
         self.procs[i] = fresh;
         Ok(())
@@ -626,18 +638,14 @@ impl RolloutSource for ShmActors {
         Some(self)
     }
 
-    /// `None`: an actor process's state would have to cross the transport, which has
-    /// no message for it yet. Checkpoints of such runs hold no actor states, and a
-    /// resumed run's actors start fresh episodes (said when resuming).
+    /// Every actor's state, asked over shared memory ([`state`]).
     fn snapshot(&mut self) -> Result<Option<Vec<ess_actor::WorkerState>>, ActorError> {
-        Ok(None)
+        self.snapshot_states().map(Some)
     }
 
-    /// Not available (see [`ShmActors::snapshot`]).
-    fn restore(&mut self, _: &[ess_actor::WorkerState]) -> Result<(), ActorError> {
-        Err(transport(
-            "actor processes cannot be restored from a checkpoint".into(),
-        ))
+    /// Restarts every actor from its state ([`state`]).
+    fn restore(&mut self, states: &[ess_actor::WorkerState]) -> Result<(), ActorError> {
+        self.restore_states(states)
     }
 }
 
