@@ -461,20 +461,8 @@ impl ShmActors {
         now: Instant,
         restarts_now: &mut [u32],
     ) -> Result<bool, ActorError> {
-        let p = &mut self.procs[i];
-        let exited = match p.child.try_wait() {
-            Ok(Some(st)) => Some(p.stderr.explain(format!("exited ({st})"))),
-            Ok(None) => None,
-            Err(e) => Some(format!("cannot be waited on ({e})")),
-        };
-        let silent = match p.last_seen {
-            Some(t) => now.duration_since(t) > self.cfg.heartbeat_timeout,
-            None => now.duration_since(p.started) > self.cfg.startup_timeout,
-        };
-        let why = match (exited, silent) {
-            (Some(w), _) => w,
-            (None, true) => format!("sent no heartbeat for {:?}", self.cfg.heartbeat_timeout),
-            _ => return Ok(false),
+        let Some(why) = self.lost(i, now) else {
+            return Ok(false);
         };
         restarts_now[i] += 1;
         if restarts_now[i] > MAX_RESTARTS_PER_ROLLOUT {
@@ -485,6 +473,29 @@ impl ShmActors {
         }
         self.restart(i, &why)?;
         Ok(true)
+    }
+
+    /// Why actor `i` counts as lost at `now` (its process exited, with its last output,
+    /// or it sent no heartbeat in time); `None` while it is alive and beating.
+    fn lost(&mut self, i: usize, now: Instant) -> Option<String> {
+        let p = &mut self.procs[i];
+        let exited = match p.child.try_wait() {
+            Ok(Some(st)) => Some(p.stderr.explain(format!("exited ({st})"))),
+            Ok(None) => None,
+            Err(e) => Some(format!("cannot be waited on ({e})")),
+        };
+        let silent = match p.last_seen {
+            Some(t) => now.duration_since(t) > self.cfg.heartbeat_timeout,
+            None => now.duration_since(p.started) > self.cfg.startup_timeout,
+        };
+        match (exited, silent) {
+            (Some(w), _) => Some(w),
+            (None, true) => Some(format!(
+                "sent no heartbeat for {:?}",
+                self.cfg.heartbeat_timeout
+            )),
+            (None, false) => None,
+        }
     }
 
     /// Sends request `r` again if its actor reports itself idle without having answered

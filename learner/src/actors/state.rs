@@ -131,21 +131,9 @@ impl ShmActors {
 
     /// An error if actor `i` exited or went silent during `what`.
     fn fail_if_lost(&mut self, i: usize, now: Instant, what: &str) -> Result<(), ActorError> {
-        let p = &mut self.procs[i];
-        let why = match p.child.try_wait() {
-            Ok(Some(st)) => p.stderr.explain(format!("exited ({st})")),
-            Err(e) => format!("cannot be waited on ({e})"),
-            Ok(None) => {
-                let silent = match p.last_seen {
-                    Some(t) => now.duration_since(t) > self.cfg.heartbeat_timeout,
-                    None => now.duration_since(p.started) > self.cfg.startup_timeout,
-                };
-                if !silent {
-                    return Ok(());
-                }
-                format!("sent no heartbeat for {:?}", self.cfg.heartbeat_timeout)
-            }
-        };
-        Err(gone(i, format!("{why} during {what}")))
+        match self.lost(i, now) {
+            Some(why) => Err(gone(i, format!("{why} during {what}"))),
+            None => Ok(()),
+        }
     }
 }
