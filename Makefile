@@ -20,7 +20,8 @@ train: build
 ## cross-process CLI) under cargo-nextest (.config/nextest.toml). One build serves both
 ## the binaries the cross-process tests start and the tests: same target selection, same
 ## features. Incremental artifacts are off here: they doubled the disk a fresh build takes.
-test: bootstrap
+test:
+	@bash scripts/bootstrap.sh --nextest
 	@$(ENV) && cargo fmt --all --check
 	@$(ENV) && cargo clippy --workspace --all-targets --locked -- -D warnings
 	@$(ENV) && CARGO_INCREMENTAL=0 cargo build --workspace --lib --bins --tests --locked

@@ -6,13 +6,20 @@
 #   - MuJoCo 3.17.0's shared library from PyPI's mujoco==3.17.0 wheel (for mujoco-rs).
 #   - CMake from PyPI's cmake wheel when none is on PATH: hdf5-metno builds a static
 #     HDF5 from source with it (for `ess demos import` of Minari datasets).
-#   - cargo-nextest (crates.io, `cargo install --locked`) when `cargo nextest` is
-#     missing: `make test` runs the tests under it.
+#   - with --nextest (what `make test` passes): cargo-nextest (crates.io, `cargo
+#     install --locked`, into ~/.cargo/bin) when `cargo nextest` is missing, and a check
+#     that the `openssl` command the TLS tests make certificates with is there.
 #   - with --slurm only: Debian's slurm-wlm and munge (apt; root or sudo), for
 #     `ess experiment --slurm` on this machine and bench/slurm_grid.sh. Nothing else
 #     needs them.
 # Safe to run any number of times: each step is skipped when its result is in place.
 set -euo pipefail
+
+with_nextest=0
+if [ "${1:-}" = "--nextest" ]; then
+  with_nextest=1
+  shift
+fi
 
 if [ "${1:-}" = "--slurm" ]; then
   if command -v slurmctld >/dev/null 2>&1 && command -v munged >/dev/null 2>&1; then
@@ -101,11 +108,15 @@ fi
 
 # --- cargo-nextest (the test runner of `make test`) --------------------------------------
 NEXTEST_VERSION=0.9.143
-if cargo nextest --version >/dev/null 2>&1; then
-  say "cargo-nextest already installed"
-else
-  say "installing cargo-nextest $NEXTEST_VERSION (cargo install, a few minutes)"
-  cargo install --locked --quiet "cargo-nextest@$NEXTEST_VERSION"
+if [ "$with_nextest" = 1 ]; then
+  if cargo nextest --version >/dev/null 2>&1; then
+    say "cargo-nextest already installed"
+  else
+    say "installing cargo-nextest $NEXTEST_VERSION (cargo install, a few minutes)"
+    cargo install --locked --quiet "cargo-nextest@$NEXTEST_VERSION"
+  fi
+  command -v openssl >/dev/null 2>&1 ||
+    die "the TLS tests need the openssl command (Debian: apt-get install openssl)"
 fi
 
 # --- env file -------------------------------------------------------------------------

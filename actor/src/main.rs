@@ -96,18 +96,24 @@ fn main() -> Result<()> {
 fn restore(worker: &mut Worker, path: &std::path::Path, index: usize) -> Result<()> {
     let bytes =
         std::fs::read(path).with_context(|| format!("--restore-state {}", path.display()))?;
+    if bytes.len() % 8 != 0 {
+        anyhow::bail!(
+            "--restore-state {}: {} bytes, not whole 8-byte words (cut?)",
+            path.display(),
+            bytes.len()
+        );
+    }
     let words: Vec<u64> = bytes
         .chunks_exact(8)
         .map(|c| u64::from_le_bytes(c.try_into().unwrap_or_default()))
         .collect();
     let m = ess_actor::state_msg::decode(&words)
         .with_context(|| format!("--restore-state {}", path.display()))?;
-    if m.actor as usize != index || bytes.len() % 8 != 0 {
+    if m.actor as usize != index {
         anyhow::bail!(
-            "--restore-state {}: a state of actor {} ({} bytes) for actor {index}",
+            "--restore-state {}: the state of actor {}, not of actor {index}",
             path.display(),
-            m.actor,
-            bytes.len()
+            m.actor
         );
     }
     worker

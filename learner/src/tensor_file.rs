@@ -30,6 +30,15 @@ pub enum TensorFileError {
         /// Which tensor.
         error: ChecksumError,
     },
+    /// A file whose checksum another file holds does not match it (a checkpoint's
+    /// `state.json` against `state.sha256`).
+    #[error("{}: does not match its checksum in {}: the file is corrupt", path.display(), sums.display())]
+    Mismatch {
+        /// The file.
+        path: PathBuf,
+        /// The file holding its checksum.
+        sums: PathBuf,
+    },
     /// A tensor safetensors or this module cannot carry.
     #[error("{}: tensor `{name}`: {reason}", path.display())]
     Tensor {
@@ -40,6 +49,13 @@ pub enum TensorFileError {
         /// Why.
         reason: String,
     },
+}
+
+impl TensorFileError {
+    /// A corrupt file (bad input: exit 2), rather than a failure to read or write.
+    pub fn is_corrupt(&self) -> bool {
+        matches!(self, Self::Checksum { .. } | Self::Mismatch { .. })
+    }
 }
 
 /// The safetensors dtype of a libtorch kind, and its element size.

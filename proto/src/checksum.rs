@@ -63,10 +63,31 @@ fn hex(d: impl AsRef<[u8]>) -> String {
     d.as_ref().iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// A dtype's name as hashed: fixed here, so that no change of another crate's `Debug`
+/// output invalidates files already written.
+fn dtype_name(dtype: Dtype) -> String {
+    match dtype {
+        Dtype::BOOL => "BOOL".into(),
+        Dtype::U8 => "U8".into(),
+        Dtype::I8 => "I8".into(),
+        Dtype::I16 => "I16".into(),
+        Dtype::U16 => "U16".into(),
+        Dtype::F16 => "F16".into(),
+        Dtype::BF16 => "BF16".into(),
+        Dtype::I32 => "I32".into(),
+        Dtype::U32 => "U32".into(),
+        Dtype::F32 => "F32".into(),
+        Dtype::F64 => "F64".into(),
+        Dtype::I64 => "I64".into(),
+        Dtype::U64 => "U64".into(),
+        other => format!("{other:?}"),
+    }
+}
+
 /// SHA-256 of one tensor: dtype, rank, shape, then its bytes.
 pub fn tensor_digest(dtype: Dtype, shape: &[usize], data: &[u8]) -> String {
     let mut h = Sha256::new();
-    h.update(format!("{dtype:?}").as_bytes());
+    h.update(dtype_name(dtype).as_bytes());
     h.update((shape.len() as u64).to_le_bytes());
     for &d in shape {
         h.update((d as u64).to_le_bytes());

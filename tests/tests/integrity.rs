@@ -42,7 +42,11 @@ fn copy_dir(from: &Path, to: &Path) {
 
 fn assert_refused(o: &std::process::Output, file: &str, what: &str) {
     let err = stderr(o);
-    assert!(!o.status.success(), "{what}: accepted\n{err}");
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{what}: not an input error\n{err}"
+    );
     let last = err
         .lines()
         .rev()

@@ -40,8 +40,14 @@ impl StderrTail {
     }
 
     fn copy_lines(&self, stderr: ChildStderr) {
-        for line in BufReader::new(stderr).lines() {
-            let Ok(line) = line else { break };
+        let mut reader = BufReader::new(stderr);
+        let mut buf = Vec::new();
+        // Bytes, not `lines()`: one non-UTF-8 byte must not end the copying.
+        while matches!(reader.read_until(b'\n', &mut buf), Ok(n) if n > 0) {
+            let line = String::from_utf8_lossy(&buf)
+                .trim_end_matches('\n')
+                .to_string();
+            buf.clear();
             let _ = writeln!(std::io::stderr().lock(), "{line}");
             if let Ok(mut q) = self.lines.lock() {
                 if q.len() == KEPT {

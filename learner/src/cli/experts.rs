@@ -1,6 +1,6 @@
 //! `ess experts`: per-mode expert policies (PPO or SAC on each mode's task reward).
 
-use super::{ConfigArgs, ctrl_c_flag, input_err, input_if, resolve};
+use super::{ConfigArgs, ctrl_c_flag, input_err, input_if, input_if_corrupt, resolve};
 use anyhow::Result;
 use clap::Subcommand;
 use ess_learner::experts::{ExpertTrainConfig, eval_experts, train_expert};
@@ -171,14 +171,18 @@ pub fn experts(cmd: ExpertsCmd) -> Result<()> {
                 }
             };
             let e = match algo {
-                ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)?,
+                ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)
+                    .map_err(input_if::<ess_envs::ExpertError>)
+                    .map_err(input_if_corrupt)?,
                 ExpertAlgo::Sac => ess_learner::experts::sac::train_expert_sac(
                     &tc,
                     &cfg.sac,
                     &mut report,
                     &shutdown,
                 )
-                .map_err(input_if::<ess_learner::experts::sac::SacInputError>)?,
+                .map_err(input_if::<ess_learner::experts::sac::SacInputError>)
+                .map_err(input_if::<ess_envs::ExpertError>)
+                .map_err(input_if_corrupt)?,
             };
             println!(
                 "expert {} mode {}: {} steps, mean return of the last episodes {:.3} -> {}",

@@ -1,6 +1,6 @@
 //! `ess export`: a trained policy as a file other runtimes load.
 
-use super::input_err;
+use super::{input_err, input_if_corrupt};
 use anyhow::Result;
 use std::path::PathBuf;
 
@@ -21,7 +21,7 @@ pub fn export(a: ExportArgs) -> Result<()> {
         )));
     }
     super::create_parent(&a.onnx)?;
-    let ckpt = ess_learner::export::export_onnx(&a.run, &a.onnx)?;
+    let ckpt = ess_learner::export::export_onnx(&a.run, &a.onnx).map_err(input_if_corrupt)?;
     println!("wrote {} (from {})", a.onnx.display(), ckpt.display());
     println!(
         "inputs: obs [N, obs_dim] raw, eps [N, 1], c [N, n_codes] one-hot; output: action [N, act_dim] in [-1, 1]"

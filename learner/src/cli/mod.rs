@@ -69,6 +69,14 @@ pub fn input_if<T: std::error::Error + Send + Sync + 'static>(e: anyhow::Error) 
     }
 }
 
+/// `e` as an input error (exit 2) when it says a file Ess wrote is corrupt.
+pub fn input_if_corrupt(e: anyhow::Error) -> anyhow::Error {
+    match e.downcast_ref::<ess_learner::tensor_file::TensorFileError>() {
+        Some(t) if t.is_corrupt() => input_err(format!("{e:#}")),
+        _ => e,
+    }
+}
+
 impl ConfigArgs {
     /// The layers these flags name (reading the config file).
     fn layers(&self) -> Result<ConfigLayers> {

@@ -1,6 +1,6 @@
 //! `ess train`: one training run, with a progress bar, lines or a JSONL stream.
 
-use super::{ConfigArgs, ctrl_c_flag, input_err, input_if, resolve};
+use super::{ConfigArgs, ctrl_c_flag, input_err, input_if, input_if_corrupt, resolve};
 use anyhow::Result;
 use clap::Args;
 use ess_learner::progress::{JsonlProgress, ProgressEvent};
@@ -20,9 +20,8 @@ pub struct TrainArgs {
     print_config: bool,
     /// Run N actors as `ess-actor` processes over iceoryx2 shared memory (sets
     /// run.actors=N, run.transport="processes"; the default is one per core). 0 runs
-    /// one actor as a thread of this process instead (run.actors=1,
-    /// run.transport="threads"): the single-process path, whose --resume is
-    /// bit-identical.
+    /// one actor as a thread of this process instead (run.actors=0, checked into
+    /// run.actors=1, run.transport="threads"): the single-process path.
     #[arg(long, value_name = "N")]
     actors: Option<usize>,
     /// Continue the run in DIR from its latest checkpoint, with the configuration it
@@ -172,7 +171,8 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
             None => run(&cfg, &out, &mut progress, &shutdown),
         }
         .map_err(input_if::<ess_learner::train::TrainInputError>)
-        .map_err(input_if::<ess_envs::DemoError>)?;
+        .map_err(input_if::<ess_envs::DemoError>)
+        .map_err(input_if_corrupt)?;
         progress.emit(&ProgressEvent::Summary((&result.summary).into()));
         return Ok(());
     }
@@ -182,7 +182,8 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         None => run(&cfg, &out, &mut progress, &shutdown),
     }
     .map_err(input_if::<ess_learner::train::TrainInputError>)
-    .map_err(input_if::<ess_envs::DemoError>)?;
+    .map_err(input_if::<ess_envs::DemoError>)
+    .map_err(input_if_corrupt)?;
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }

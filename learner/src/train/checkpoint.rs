@@ -166,8 +166,8 @@ pub struct TrainState {
     pub scaler: ScalerState,
     /// Adam step counts per optimiser and variable.
     pub adam_steps: BTreeMap<String, BTreeMap<String, i64>>,
-    /// Each actor's state, in actor order; empty when the actors could not provide it
-    /// (actor processes), in which case a resumed run starts fresh episodes.
+    /// Each actor's state, in actor order; empty only when a snapshot failed (an actor
+    /// lost during it), in which case a resumed run starts fresh episodes.
     pub actors: Vec<SavedWorker>,
     /// With `run.pipeline = "overlap"`: the weights the next iteration's rollout was
     /// collected under, as they travel to actor processes (the actors' states above
@@ -260,15 +260,25 @@ pub fn load(
 ) -> Result<TrainState> {
     let p = dir.join("state.json");
     let text = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+    let format = serde_json::from_slice::<serde_json::Value>(&text)
+        .ok()
+        .and_then(|v| v.get("format").and_then(serde_json::Value::as_u64));
+    if format.is_some_and(|f| f != u64::from(FORMAT)) {
+        bail!(
+            "{}: checkpoint format {} (this build reads format {FORMAT})",
+            p.display(),
+            format.unwrap_or_default()
+        );
+    }
     let sum_path = dir.join(STATE_SHA256);
     let sum = std::fs::read_to_string(&sum_path)
         .with_context(|| format!("reading {}", sum_path.display()))?;
     if sum.split_whitespace().next() != Some(&crate::tensor_file::sha256_hex(&text)) {
-        bail!(
-            "{}: does not match its checksum in {}: the checkpoint is corrupt",
-            p.display(),
-            sum_path.display()
-        );
+        return Err(crate::tensor_file::TensorFileError::Mismatch {
+            path: p,
+            sums: sum_path,
+        }
+        .into());
     }
     let state: TrainState =
         serde_json::from_slice(&text).with_context(|| format!("parsing {}", p.display()))?;
@@ -281,9 +291,8 @@ pub fn load(
     }
     for (name, vs) in STORES.iter().zip(stores) {
         let p = dir.join(format!("{name}.safetensors"));
-        crate::tensor_file::load_var_store(vs, &p).with_context(|| {
-            format!("loading {} (a checkpoint of another config?)", p.display())
-        })?;
+        crate::tensor_file::load_var_store(vs, &p)
+            .with_context(|| format!("loading {} into this run's networks", p.display()))?;
     }
     let p = dir.join("optim.safetensors");
     let (mut tensors, _) = crate::tensor_file::load(&p).context("loading a checkpoint")?;

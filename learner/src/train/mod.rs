@@ -153,8 +153,8 @@ pub fn run_config(out: &Path) -> Result<CheckedConfig> {
 
 /// Continues the run in `out` from its latest checkpoint
 /// ([`crate::train::checkpoint`]) with the configuration it was started with, appending to its
-/// `metrics.csv`. The continued run is bit-identical to one never stopped (on the
-/// threaded transport; actor processes start fresh episodes, see
+/// `metrics.csv`. The continued run is bit-identical to one never stopped, with actor
+/// threads or processes (unless the checkpoint holds no actor states, see
 /// [`crate::train::checkpoint::TrainState::actors`]).
 pub fn resume(out: &Path, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<RunOutput> {
     let cfg = run_config(out)?;

@@ -196,8 +196,8 @@ fn rollout_source(
     }
 }
 
-/// The actors' states for a checkpoint; none where the transport does not carry them
-/// (actor processes; `--resume` says so) or could not give them (logged).
+/// The actors' states for a checkpoint; none only when a snapshot failed (an actor lost
+/// during it: logged, and `--resume` says so).
 pub(super) fn actor_states(
     actors: &mut dyn RolloutSource,
 ) -> Vec<crate::train::checkpoint::SavedWorker> {
