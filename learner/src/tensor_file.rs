@@ -134,13 +134,20 @@ pub fn save<S: AsRef<str>>(
         views.push((n.as_ref(), view));
     }
     checksum::seal(&mut metadata, views.iter().map(|(n, v)| (*n, v)));
-    let bytes =
-        safetensors::serialize(views, Some(metadata)).map_err(|e| TensorFileError::Tensor {
+    // Streamed tensor by tensor into the temporary file (no second copy of the data).
+    let file = ess_envs::AtomicFile::new(path);
+    safetensors::serialize_to_file(views, Some(metadata), file.tmp()).map_err(|e| match e {
+        safetensors::SafeTensorError::IoError(error) => TensorFileError::Io {
+            path: file.tmp().to_path_buf(),
+            error,
+        },
+        other => TensorFileError::Tensor {
             path: path.to_path_buf(),
             name: String::new(),
-            reason: e.to_string(),
-        })?;
-    ess_envs::write_atomic(path, &bytes)
+            reason: other.to_string(),
+        },
+    })?;
+    file.commit()
         .map_err(|(path, error)| TensorFileError::Io { path, error })
 }
 
@@ -202,10 +209,7 @@ pub fn load_var_store(vs: &mut nn::VarStore, path: &Path) -> anyhow::Result<()> 
 /// SHA-256 (hex) of `bytes`, for a JSON file whose checksum a sealed file carries.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     use sha2::Digest;
-    sha2::Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
+    checksum::hex(sha2::Sha256::digest(bytes))
 }
 
 #[cfg(test)]

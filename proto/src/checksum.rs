@@ -59,7 +59,8 @@ pub enum ChecksumError {
     BadSeal,
 }
 
-fn hex(d: impl AsRef<[u8]>) -> String {
+/// Lower-case hex of a digest (the one spelling of SHA-256 sums in Ess's files).
+pub fn hex(d: impl AsRef<[u8]>) -> String {
     d.as_ref().iter().map(|b| format!("{b:02x}")).collect()
 }
 

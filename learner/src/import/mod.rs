@@ -389,7 +389,7 @@ pub fn sha256_file(path: &Path) -> Result<String, ImportError> {
         }
         h.update(&buf[..n]);
     }
-    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+    Ok(ess_proto::checksum::hex(h.finalize()))
 }
 
 /// A provenance record for `format` read from `path` (its hash of `data_file`).
