@@ -191,18 +191,26 @@ pub fn save_var_store(vs: &nn::VarStore, path: &Path) -> Result<(), TensorFileEr
     save(path, &named, HashMap::new())
 }
 
-/// Checks `path` against its checksums, then loads it into `vs` with tch's own name and
-/// shape checks.
+/// Loads `path` into `vs`: the tensors [`load`] checked against their checksums (one
+/// read of the file), every variable of `vs` by name, shapes as they are.
 pub fn load_var_store(vs: &mut nn::VarStore, path: &Path) -> anyhow::Result<()> {
-    let bytes = std::fs::read(path).map_err(|error| TensorFileError::Io {
-        path: path.to_path_buf(),
-        error,
-    })?;
-    checksum::verify(&bytes, false).map_err(|error| TensorFileError::Checksum {
-        path: path.to_path_buf(),
-        error,
-    })?;
-    vs.load(path)?;
+    use anyhow::Context;
+    let (mut tensors, _) = load(path)?;
+    for (name, mut var) in vs.variables() {
+        let src = tensors
+            .remove(&name)
+            .with_context(|| format!("{}: no tensor `{name}`", path.display()))?;
+        if src.size() != var.size() {
+            anyhow::bail!(
+                "{}: tensor `{name}` has shape {:?}, the network's is {:?}",
+                path.display(),
+                src.size(),
+                var.size()
+            );
+        }
+        tch::no_grad(|| var.f_copy_(&src.to_device(var.device())))
+            .with_context(|| format!("{}: tensor `{name}`", path.display()))?;
+    }
     Ok(())
 }
 
