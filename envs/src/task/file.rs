@@ -108,13 +108,40 @@ pub(crate) fn task_error(path: &Path, reason: impl Into<String>) -> EnvError {
     }
 }
 
+/// The most bytes a task file may have; real ones are a few KB.
+pub const MAX_TASK_FILE_BYTES: u64 = 1 << 20;
+
+/// Reads a task file's text: a regular file of at most [`MAX_TASK_FILE_BYTES`]. A job
+/// spec names its task file by path on the server, so a FIFO, a device (`/dev/zero`,
+/// `/dev/stdin`) or a huge file must be refused, not read until memory runs out.
+fn read_capped(path: &Path) -> std::io::Result<String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path)?;
+    if !file.metadata()?.is_file() {
+        return Err(std::io::Error::other("not a regular file"));
+    }
+    let mut text = String::new();
+    file.take(MAX_TASK_FILE_BYTES + 1)
+        .read_to_string(&mut text)?;
+    if text.len() as u64 > MAX_TASK_FILE_BYTES {
+        return Err(std::io::Error::other(format!(
+            "larger than {MAX_TASK_FILE_BYTES} bytes; a task file is a short TOML file"
+        )));
+    }
+    Ok(text)
+}
+
 impl TaskFile {
     /// Reads and checks `path`; errors name the file, the line where TOML could say it,
     /// and the key.
     pub fn read(path: &Path) -> Result<Self, EnvError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| task_error(path, format!("cannot read: {e}")))?;
-        let file: TaskFile = toml::from_str(&text).map_err(|e| {
+        let text = read_capped(path).map_err(|e| task_error(path, format!("cannot read: {e}")))?;
+        Self::parse(path, &text)
+    }
+
+    /// Parses and checks the text of a task file; `path` names it in errors.
+    pub fn parse(path: &Path, text: &str) -> Result<Self, EnvError> {
+        let file: TaskFile = toml::from_str(text).map_err(|e| {
             let line = e
                 .span()
                 .map(|s| {

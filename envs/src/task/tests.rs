@@ -283,3 +283,25 @@ fn make_env_refuses_a_task_file_it_has_no_expert_for() {
     };
     assert!(err.to_string().contains("ess demos import"), "{err}");
 }
+
+#[test]
+fn devices_fifos_and_huge_files_are_refused_not_read() {
+    // A job spec names its task file by path on the server: `/dev/zero` used to be read
+    // until memory ran out, and a FIFO or `/dev/stdin` blocked the server's worker.
+    let dir = tempfile::tempdir().expect("tmp");
+    let fifo = dir.path().join("fifo.toml");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("mkfifo");
+    assert!(made.success());
+    for path in [Path::new("/dev/zero"), fifo.as_path()] {
+        let msg = TaskEnv::load(path, 3).expect_err("read").to_string();
+        assert!(msg.contains("not a regular file"), "{msg}");
+    }
+    let big = dir.path().join("big.toml");
+    let line = "# padding\n".repeat(1 + file::MAX_TASK_FILE_BYTES as usize / 10);
+    std::fs::write(&big, format!("{HEAD}{line}")).expect("write");
+    let msg = TaskEnv::load(&big, 3).expect_err("huge").to_string();
+    assert!(msg.contains("big.toml: cannot read: larger than"), "{msg}");
+}
