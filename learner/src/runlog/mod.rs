@@ -131,7 +131,7 @@ pub enum RunLogError {
         source: std::io::Error,
     },
     /// The MCAP writer refused a record.
-    #[error("{}: writing MCAP: {source}", path.display())]
+    #[error("{}: writing MCAP: {}", path.display(), mcap_reason(source))]
     Mcap {
         /// The file.
         path: PathBuf,
@@ -496,6 +496,15 @@ impl RunLog {
     }
 }
 
+/// The mcap crate's error, with the OS error its I/O variant hides ("No space left on
+/// device" rather than "I/O error from writing, or reading a compression stream").
+fn mcap_reason(e: &mcap::McapError) -> String {
+    match e {
+        mcap::McapError::Io(io) => io.to_string(),
+        other => other.to_string(),
+    }
+}
+
 impl Drop for RunLog {
     /// Finishes the file on every path out of `train::run`, errors included.
     fn drop(&mut self) {
@@ -631,6 +640,10 @@ impl RunLogContents {
     }
 }
 
+/// The longest record (or decompressed chunk) the reader accepts. The largest Ess
+/// writes is a `/train/chunk` sample: well under 1 MiB even for Humanoid.
+pub const MAX_RECORD_BYTES: usize = 256 << 20;
+
 /// Reads the run log at `path`, streaming, and returns every complete message; a
 /// truncated file is no error (see [`RunLogContents::truncated`]). Errors: the file
 /// cannot be opened, does not start with the MCAP magic, has a known topic with a
@@ -666,7 +679,14 @@ pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, R
         out.truncated = Some(format!("the file ends after {} bytes", head.len()));
         return Ok(out);
     }
-    let reader = mcap::io::MessageReader::new(std::io::Cursor::new(head).chain(source));
+    // A corrupt length field must be an error, not an allocation of exabytes (which
+    // aborts the process): no record Ess writes comes near the limit.
+    let options =
+        mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(MAX_RECORD_BYTES);
+    let reader = mcap::io::MessageReader::new_with_options(
+        std::io::Cursor::new(head).chain(source),
+        options,
+    );
     for (index, msg) in reader.enumerate() {
         let msg = match msg {
             Ok(m) => m,
