@@ -137,8 +137,9 @@ pub fn save<S: AsRef<str>>(
     // Streamed tensor by tensor into the temporary file (no second copy of the data).
     let file = ess_envs::AtomicFile::new(path);
     safetensors::serialize_to_file(views, Some(metadata), file.tmp()).map_err(|e| match e {
+        // Named by the file being written, not its temporary name.
         safetensors::SafeTensorError::IoError(error) => TensorFileError::Io {
-            path: file.tmp().to_path_buf(),
+            path: path.to_path_buf(),
             error,
         },
         other => TensorFileError::Tensor {

@@ -183,7 +183,9 @@ pub fn dir_for(root: &Path, iteration: usize) -> PathBuf {
 }
 
 /// Writes a checkpoint into `root` (`checkpoints/`): `stores` and `opts` as named in
-/// [`STORES`], `state` with the Adam step counts filled in. Returns its directory.
+/// [`STORES`], `state` with the Adam step counts filled in. Returns its directory. A
+/// failed save (a full disk) removes its partial `.tmp` directory, so the space goes
+/// back and the previous checkpoint stays the latest.
 pub fn save(
     root: &Path,
     stores: [&nn::VarStore; 3],
@@ -195,10 +197,29 @@ pub fn save(
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
     }
-    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let written = write_files(&tmp, stores, opts, state);
+    if let Err(e) = written {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e.context(format!("saving checkpoint {}", dir.display())));
+    }
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).with_context(|| format!("replacing {}", dir.display()))?;
+    }
+    std::fs::rename(&tmp, &dir)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), dir.display()))?;
+    Ok(dir)
+}
+
+/// The files of a checkpoint, written into `tmp`.
+fn write_files(
+    tmp: &Path,
+    stores: [&nn::VarStore; 3],
+    opts: [&Adam; 3],
+    state: &mut TrainState,
+) -> Result<()> {
+    std::fs::create_dir_all(tmp).with_context(|| format!("creating {}", tmp.display()))?;
     for (name, vs) in STORES.iter().zip(stores) {
-        let p = tmp.join(format!("{name}.safetensors"));
-        crate::tensor_file::save_var_store(vs, &p).context("saving a checkpoint")?;
+        crate::tensor_file::save_var_store(vs, &tmp.join(format!("{name}.safetensors")))?;
     }
     let mut tensors: Vec<(String, Tensor)> = Vec::new();
     state.adam_steps.clear();
@@ -211,8 +232,7 @@ pub fn save(
         }
         state.adam_steps.insert(name.to_string(), steps);
     }
-    let p = tmp.join("optim.safetensors");
-    crate::tensor_file::save(&p, &tensors, Default::default()).context("saving a checkpoint")?;
+    crate::tensor_file::save(&tmp.join("optim.safetensors"), &tensors, Default::default())?;
     let state_json = serde_json::to_vec_pretty(state)?;
     let sum = format!(
         "{}  state.json\n",
@@ -222,12 +242,7 @@ pub fn save(
         let p = tmp.join(name);
         std::fs::write(&p, bytes).with_context(|| format!("writing {}", p.display()))?;
     }
-    if dir.exists() {
-        std::fs::remove_dir_all(&dir).with_context(|| format!("replacing {}", dir.display()))?;
-    }
-    std::fs::rename(&tmp, &dir)
-        .with_context(|| format!("renaming {} to {}", tmp.display(), dir.display()))?;
-    Ok(dir)
+    Ok(())
 }
 
 /// The complete checkpoint with the most iterations under `root`, if any.
