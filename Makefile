@@ -4,7 +4,7 @@ ENV := source .deps/env.sh
 # Arguments for `make train`, e.g. make train ARGS="--preset gail --seed 1"
 ARGS ?=
 
-.PHONY: bootstrap build train test lint bench-traj2d clean-runs
+.PHONY: bootstrap build train test lint fuzz bench-traj2d clean-runs
 
 bootstrap:
 	@bash scripts/bootstrap.sh
@@ -30,6 +30,20 @@ test:
 lint: bootstrap
 	@$(ENV) && cargo fmt --all --check
 	@$(ENV) && cargo clippy --workspace --all-targets --locked -- -D warnings
+
+## Coverage-guided fuzzing of every parser with libFuzzer (cargo-fuzz, nightly):
+## FUZZ_SECONDS per target; new inputs go to fuzz/libfuzzer/corpus, crashes to
+## fuzz/libfuzzer/artifacts (bench/fuzz.md). make test runs a short stable version.
+FUZZ_SECONDS ?= 300
+FUZZ_TARGETS ?= config task_file demos runlog shm job_spec
+fuzz:
+	@bash scripts/bootstrap.sh --fuzz
+	@$(ENV) && for t in $(FUZZ_TARGETS); do \
+	  mkdir -p fuzz/libfuzzer/corpus/$$t && \
+	  cargo +nightly fuzz run --fuzz-dir fuzz/libfuzzer $$t fuzz/libfuzzer/corpus/$$t fuzz/corpus/$$t -- \
+	    -max_total_time=$(FUZZ_SECONDS) -rss_limit_mb=4096 -max_len=262144 -timeout=10 -print_final_stats=1 \
+	    || exit 1; \
+	done
 
 ## Table 1 (2D column) for all seven presets x 5 seeds: see bench/README.md.
 bench-traj2d: build

@@ -9,6 +9,9 @@
 #   - with --nextest (what `make test` passes): cargo-nextest (crates.io, `cargo
 #     install --locked`, into ~/.cargo/bin) when `cargo nextest` is missing, and a check
 #     that the `openssl` command the TLS tests make certificates with is there.
+#   - with --fuzz (what `make fuzz` passes): cargo-fuzz (crates.io) when missing, and a
+#     check that a nightly toolchain is installed (libFuzzer's instrumentation needs
+#     it; `make test`'s short fuzz run does not).
 #   - with --slurm only: Debian's slurm-wlm and munge (apt; root or sudo), for
 #     `ess experiment --slurm` on this machine and bench/slurm_grid.sh. Nothing else
 #     needs them.
@@ -18,6 +21,11 @@ set -euo pipefail
 with_nextest=0
 if [ "${1:-}" = "--nextest" ]; then
   with_nextest=1
+  shift
+fi
+with_fuzz=0
+if [ "${1:-}" = "--fuzz" ]; then
+  with_fuzz=1
   shift
 fi
 
@@ -117,6 +125,19 @@ if [ "$with_nextest" = 1 ]; then
   fi
   command -v openssl >/dev/null 2>&1 ||
     die "the TLS tests need the openssl command (Debian: apt-get install openssl)"
+fi
+
+# --- cargo-fuzz (coverage-guided fuzzing, `make fuzz`) ----------------------------------
+CARGO_FUZZ_VERSION=0.13.2
+if [ "$with_fuzz" = 1 ]; then
+  rustup run nightly rustc --version >/dev/null 2>&1 ||
+    die "make fuzz needs a nightly toolchain (rustup toolchain install nightly); make test does not"
+  if cargo fuzz --version >/dev/null 2>&1; then
+    say "cargo-fuzz already installed"
+  else
+    say "installing cargo-fuzz $CARGO_FUZZ_VERSION (cargo install, about a minute)"
+    cargo +nightly install --locked --quiet "cargo-fuzz@$CARGO_FUZZ_VERSION"
+  fi
 fi
 
 # --- env file -------------------------------------------------------------------------

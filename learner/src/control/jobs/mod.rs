@@ -31,8 +31,8 @@ mod spec;
 
 pub use record::{Error, State};
 use record::{JobRecord, io_err, now_ms, persist};
-pub use spec::has_checkpoint;
-use spec::{log_tail, validate};
+use spec::log_tail;
+pub use spec::{Validated, has_checkpoint, validate};
 
 use crate::progress::ProgressEvent;
 use ess_proto::pb;

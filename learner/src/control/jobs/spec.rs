@@ -45,7 +45,7 @@ pub(super) fn spec_field(e: &ResolveError) -> String {
 }
 
 /// A spec validated: its resolved config and what the job holds.
-pub(super) struct Validated {
+pub struct Validated {
     pub(super) preset: String,
     pub(super) config_toml: String,
     pub(super) iterations: u32,
@@ -53,8 +53,15 @@ pub(super) struct Validated {
     pub(super) torch_threads: Option<usize>,
 }
 
+impl Validated {
+    /// The resolved configuration as TOML (what the job's run directory gets).
+    pub fn config_toml(&self) -> &str {
+        &self.config_toml
+    }
+}
+
 /// Resolves `spec` exactly as `ess train` resolves its flags; errors name the field.
-pub(super) fn validate(spec: &pb::JobSpec, budget: usize) -> Result<Validated, Error> {
+pub fn validate(spec: &pb::JobSpec, budget: usize) -> Result<Validated, Error> {
     let invalid = |field: String, message: String| Error::InvalidArgument { field, message };
     let mut set = Vec::with_capacity(spec.overrides.len());
     for (i, o) in spec.overrides.iter().enumerate() {
