@@ -295,8 +295,18 @@ fn devices_fifos_and_huge_files_are_refused_not_read() {
         .status()
         .expect("mkfifo");
     assert!(made.success());
-    for path in [Path::new("/dev/zero"), fifo.as_path()] {
-        let msg = TaskEnv::load(path, 3).expect_err("read").to_string();
+    for path in [PathBuf::from("/dev/zero"), fifo.clone()] {
+        // In a thread with a deadline, so that a read that blocks fails this test in
+        // seconds instead of hanging the suite until its 10-minute kill.
+        let (tx, rx) = std::sync::mpsc::channel();
+        let p = path.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(TaskEnv::load(&p, 3).map(|_| ()).map_err(|e| e.to_string()));
+        });
+        let got = rx.recv_timeout(std::time::Duration::from_secs(20));
+        let msg = got
+            .unwrap_or_else(|_| panic!("reading {} blocked", path.display()))
+            .expect_err("read");
         assert!(msg.contains("not a regular file"), "{msg}");
     }
     let big = dir.path().join("big.toml");
