@@ -55,7 +55,10 @@ pub fn env_defaults(env: &str) -> Option<&'static str> {
 #[derive(Debug, thiserror::Error)]
 pub enum PresetError {
     /// No preset of that name.
-    #[error("unknown preset `{name}`; known presets: {known}")]
+    #[error(
+        "unknown preset `{}`; known presets: {known}",
+        ess_proto::text::printable(name)
+    )]
     Unknown {
         /// The name asked for.
         name: String,

@@ -14,7 +14,10 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum ConfigError {
     /// A key that the configuration does not have.
-    #[error("unknown config key `{key}` (in {source_name})")]
+    #[error(
+        "unknown config key `{}` (in {source_name})",
+        crate::text::printable(key)
+    )]
     UnknownKey {
         /// Dotted key.
         key: String,
@@ -22,7 +25,10 @@ pub enum ConfigError {
         source_name: String,
     },
     /// A value of the wrong TOML type.
-    #[error("config key `{key}` (in {source_name}) must be {expected}, got {got}")]
+    #[error(
+        "config key `{}` (in {source_name}) must be {expected}, got {got}",
+        crate::text::printable(key)
+    )]
     WrongType {
         /// Dotted key.
         key: String,
@@ -34,7 +40,11 @@ pub enum ConfigError {
         got: String,
     },
     /// A value outside its allowed range.
-    #[error("config key `{key}` = {value} is out of range: {reason}")]
+    #[error(
+        "config key `{}` = {} is out of range: {reason}",
+        crate::text::printable(key),
+        crate::text::printable(value)
+    )]
     OutOfRange {
         /// Dotted key.
         key: String,
@@ -44,7 +54,7 @@ pub enum ConfigError {
         reason: String,
     },
     /// A `--set` argument not of the form `key=value`.
-    #[error("bad override `{arg}`: expected key=value")]
+    #[error("bad override `{}`: expected key=value", crate::text::printable(arg))]
     BadOverride {
         /// The argument as given.
         arg: String,

@@ -9,6 +9,7 @@
 //! - [`chunk`]: the transition chunk an actor hands the learner.
 //! - [`shm`]: the `#[repr(C)]` shared-memory layouts of chunks and weights.
 //! - [`onnx`]: ONNX's own protobuf messages, for exporting policies.
+//! - [`text`]: outside input quoted in error messages, control characters escaped.
 //!
 //! This crate depends on nothing internal and never on tch or MuJoCo.
 
@@ -17,6 +18,7 @@ pub mod chunk;
 pub mod config;
 pub mod mlp;
 pub mod shm;
+pub mod text;
 pub mod weights;
 
 pub use chunk::{Chunk, Step, StepSink};

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 pub enum Error {
     /// The request is malformed; `field` names the offending field (`spec.preset`,
     /// `spec.overrides[2].key`, ...).
-    #[error("{field}: {message}")]
+    #[error("{field}: {}", ess_proto::text::printable(message))]
     InvalidArgument {
         /// Path of the field in the request.
         field: String,
@@ -18,13 +18,16 @@ pub enum Error {
         message: String,
     },
     /// No job with this id.
-    #[error("no job `{id}`")]
+    #[error("no job `{}`", ess_proto::text::printable(id))]
     NotFound {
         /// The id asked for.
         id: String,
     },
     /// The job is in a state that does not allow the action.
-    #[error("job `{id}` is {state}: cannot {action} it")]
+    #[error(
+        "job `{}` is {state}: cannot {action} it",
+        ess_proto::text::printable(id)
+    )]
     FailedPrecondition {
         /// The job.
         id: String,
