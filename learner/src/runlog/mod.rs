@@ -710,10 +710,11 @@ pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, R
             return Err(RunLogError::WrongSchema {
                 path: path.to_path_buf(),
                 topic: ch.topic.clone(),
-                found: format!(
+                found: ess_proto::text::printable(&format!(
                     "schema `{found}` (schema encoding `{schema_encoding}`, message encoding `{}`)",
                     ch.message_encoding
-                ),
+                ))
+                .into_owned(),
                 expected,
             });
         }
