@@ -20,8 +20,8 @@ train: build
 ## (unit, golden numbers, cross-process CLI) under cargo-nextest (.config/nextest.toml).
 ## The build compiles our crates through clippy-driver (what `cargo clippy` runs, here
 ## as cargo's workspace wrapper), so clippy's lints with -D warnings come out of the same
-## compilation that makes the test binaries: a separate `cargo clippy` re-checked every
-## dependency and was 40% of a fresh make test (bench/tests.md). CLIPPY_ARGS is how
+## compilation that makes the test binaries, instead of a second, metadata-only pass over
+## every dependency (about a minute of a fresh make test: bench/tests.md). CLIPPY_ARGS is how
 ## cargo-clippy hands its `-- -D warnings` to clippy-driver (pinned toolchain:
 ## rust-toolchain.toml). Same selection and environment for build and nextest, so nextest
 ## rebuilds nothing. Incremental artifacts are off: they doubled a fresh build's disk.
