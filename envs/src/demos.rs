@@ -706,7 +706,7 @@ impl Demos {
 
     /// Reads and fully validates a dataset written by [`Demos::save`].
     pub fn load(path: &Path) -> Result<Demos, DemoError> {
-        let bytes = std::fs::read(path).map_err(|error| DemoError::Io {
+        let bytes = crate::read::read_regular(path).map_err(|error| DemoError::Io {
             path: path.to_owned(),
             error,
         })?;

@@ -257,7 +257,7 @@ impl ExpertPolicy {
 
     /// Reads and validates an expert file.
     pub fn load(path: &Path) -> Result<Self, ExpertError> {
-        let bytes = std::fs::read(path).map_err(|source| ExpertError::Io {
+        let bytes = crate::read::read_regular(path).map_err(|source| ExpertError::Io {
             path: path.to_owned(),
             source,
         })?;

@@ -21,6 +21,7 @@
 //!   Humanoid-v5's model and spaces with the same three modes; no scripted expert.
 //! - [`task`]: a task from the user's own MJCF model, described by a TOML task file
 //!   (observation pieces, actions, episode, optional per-mode rewards).
+//! - [`read`]: reading a file named by outside input: regular files only, never blocking.
 //! - [`demos`]: imbalanced, partly labeled demonstration datasets (paper Sec. 4,
 //!   "Multi-modal demonstrations preparation") and their safetensors file format.
 //!
@@ -36,6 +37,7 @@ pub mod locomotion;
 mod mujoco;
 pub mod pusher;
 pub mod reacher;
+pub mod read;
 pub mod task;
 pub mod traj2d;
 pub mod walker2d;

@@ -116,16 +116,7 @@ pub const MAX_TASK_FILE_BYTES: u64 = 1 << 20;
 /// `/dev/stdin`) or a huge file must be refused, not read until memory runs out.
 fn read_capped(path: &Path) -> std::io::Result<String> {
     use std::io::Read;
-    use std::os::unix::fs::OpenOptionsExt;
-    // O_NONBLOCK: opening a FIFO without it waits for a writer, before the check below
-    // can refuse it. A regular file reads the same either way.
-    let file = std::fs::OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK)
-        .open(path)?;
-    if !file.metadata()?.is_file() {
-        return Err(std::io::Error::other("not a regular file"));
-    }
+    let file = crate::read::open_regular(path)?;
     let mut text = String::new();
     file.take(MAX_TASK_FILE_BYTES + 1)
         .read_to_string(&mut text)?;
