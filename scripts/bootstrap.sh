@@ -8,7 +8,9 @@
 #     HDF5 from source with it (for `ess demos import` of Minari datasets).
 #   - with --nextest (what `make test` passes): cargo-nextest (crates.io, `cargo
 #     install --locked`, into ~/.cargo/bin) when `cargo nextest` is missing, and a check
-#     that the `openssl` command the TLS tests make certificates with is there.
+#     that the `openssl` command the TLS tests make certificates with is there; and
+#     onnxruntime + numpy from PyPI into .deps/pytest, the outside runtime the ONNX
+#     export test runs the exported policy in (tests only: `ess` never calls Python).
 #   - with --fuzz (what `make fuzz` passes): cargo-fuzz (crates.io) when missing, and a
 #     check that a nightly toolchain is installed (libFuzzer's instrumentation needs
 #     it; `make test`'s short fuzz run does not).
@@ -125,6 +127,21 @@ if [ "$with_nextest" = 1 ]; then
   fi
   command -v openssl >/dev/null 2>&1 ||
     die "the TLS tests need the openssl command (Debian: apt-get install openssl)"
+  ORT_VERSION=1.23.2
+  NUMPY_VERSION=2.3.5
+  pytest_dir="$deps/pytest"
+  stamp="$pytest_dir/.onnxruntime-$ORT_VERSION-numpy-$NUMPY_VERSION.ok"
+  if [ ! -f "$stamp" ]; then
+    say "installing onnxruntime==$ORT_VERSION and numpy==$NUMPY_VERSION (the ONNX export test's runtime) into $pytest_dir"
+    rm -rf "$pytest_dir"
+    "$PY" -m pip install --quiet --disable-pip-version-check --no-deps --no-compile \
+      --target "$pytest_dir" "onnxruntime==$ORT_VERSION" "numpy==$NUMPY_VERSION"
+    PYTHONPATH="$pytest_dir" "$PY" -c "import onnxruntime" ||
+      die "onnxruntime installed into $pytest_dir but does not import"
+    touch "$stamp"
+  else
+    say "onnxruntime $ORT_VERSION already in $pytest_dir"
+  fi
 fi
 
 # --- cargo-fuzz (coverage-guided fuzzing, `make fuzz`) ----------------------------------

@@ -1,11 +1,76 @@
-//! `ess export RUN --onnx FILE`: the model loads in tract (a pure-Rust ONNX runtime,
-//! not ours) and gives the actions of our own policy forward within 1e-5.
+//! `ess export RUN --onnx FILE`: the model loads in onnxruntime (Microsoft's ONNX
+//! runtime, run from Python as a deploying user would) and gives the actions of our own
+//! policy forward within 1e-5. onnxruntime and numpy come from PyPI into
+//! `.deps/pytest` (`scripts/bootstrap.sh --nextest`, which `make test` runs), or from
+//! `$ESS_TEST_PYTHONPATH`; `ess` itself never calls Python.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
 
 use ess_tests::{SMOKE, ess};
-use tract_onnx::prelude::*;
+use serde_json::{Value, json};
+
+/// Runs the model at `model` in onnxruntime on `inputs` (row-major f32 arrays with their
+/// shapes, in the model's input order) and returns its first output, row-major.
+const RUN_IN_ONNXRUNTIME: &str = r#"
+import json, sys
+import numpy as np
+import onnxruntime as ort
+model, feeds_path = sys.argv[1], sys.argv[2]
+with open(feeds_path) as f:
+    feeds = json.load(f)
+s = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
+names = [i.name for i in s.get_inputs()]
+if len(names) != len(feeds):
+    sys.exit(f"model has inputs {names}, test gave {len(feeds)}")
+arrays = {n: np.asarray(x["data"], dtype=np.float32).reshape(x["shape"]) for n, x in zip(names, feeds)}
+out = s.run(None, arrays)[0]
+json.dump({"version": ort.__version__, "shape": list(out.shape), "data": out.astype(np.float64).ravel().tolist()}, sys.stdout)
+"#;
+
+/// Where onnxruntime was installed for the tests.
+fn onnxruntime_path() -> PathBuf {
+    match std::env::var_os("ESS_TEST_PYTHONPATH") {
+        Some(p) if !p.is_empty() => PathBuf::from(p),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../.deps/pytest"),
+    }
+}
+
+fn onnxruntime_run(model: &Path, inputs: &[(&[f32], [usize; 2])], dir: &Path) -> (Vec<f32>, Value) {
+    let feeds: Vec<Value> = inputs
+        .iter()
+        .map(|(data, shape)| json!({ "data": data, "shape": shape }))
+        .collect();
+    let feeds_path = dir.join("feeds.json");
+    std::fs::write(&feeds_path, serde_json::to_vec(&feeds).unwrap()).unwrap();
+    let pythonpath = onnxruntime_path();
+    let out = Command::new(std::env::var("PYTHON").unwrap_or_else(|_| "python3".into()))
+        .arg("-c")
+        .arg(RUN_IN_ONNXRUNTIME)
+        .arg(model)
+        .arg(&feeds_path)
+        .env("PYTHONPATH", &pythonpath)
+        .env("PYTHONNOUSERSITE", "1")
+        .output()
+        .expect("python3 runs");
+    assert!(
+        out.status.success(),
+        "onnxruntime (PYTHONPATH {}; `bash scripts/bootstrap.sh --nextest` installs it) failed: {}",
+        pythonpath.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let data = v["data"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap() as f32)
+        .collect();
+    (data, v)
+}
 
 #[test]
-fn the_onnx_policy_gives_our_actions_in_tract() {
+fn the_onnx_policy_gives_our_actions_in_onnxruntime() {
     let d = tempfile::tempdir().unwrap();
     let run = d.path().join("run").display().to_string();
     let mut args = vec!["train", "--actors", "0", "--out", &run];
@@ -17,23 +82,10 @@ fn the_onnx_policy_gives_our_actions_in_tract() {
     let r = ess(&["export", &run, "--onnx", &m]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
 
-    let (w, cfg, _) = ess_learner::export::run_policy(std::path::Path::new(&run)).unwrap();
+    let (w, cfg, _) = ess_learner::export::run_policy(Path::new(&run)).unwrap();
     let (od, k) = (w.obs_mean.len(), cfg.env.n_modes);
     let ad = w.log_std.len();
     let n = 64;
-    let model = tract_onnx::onnx()
-        .model_for_path(&model_path)
-        .unwrap()
-        .with_input_fact(0, f32::fact([n, od]).into())
-        .unwrap()
-        .with_input_fact(1, f32::fact([n, 1]).into())
-        .unwrap()
-        .with_input_fact(2, f32::fact([n, k]).into())
-        .unwrap()
-        .into_optimized()
-        .unwrap()
-        .into_runnable()
-        .unwrap();
     // Inputs spread over the data's range: obs around the normaliser, eps in [-1, 1].
     let mut x = 0x9e37_79b9u32;
     let mut rnd = || {
@@ -50,23 +102,9 @@ fn the_onnx_policy_gives_our_actions_in_tract() {
     for row in 0..n {
         c[row * k + row % k] = 1.0;
     }
-    let out = model
-        .run(tvec!(
-            tract_ndarray::Array2::from_shape_vec((n, od), obs.clone())
-                .unwrap()
-                .into_tensor()
-                .into(),
-            tract_ndarray::Array2::from_shape_vec((n, 1), eps.clone())
-                .unwrap()
-                .into_tensor()
-                .into(),
-            tract_ndarray::Array2::from_shape_vec((n, k), c.clone())
-                .unwrap()
-                .into_tensor()
-                .into(),
-        ))
-        .unwrap();
-    let got = out[0].to_plain_array_view::<f32>().unwrap();
+    let inputs = [(&obs[..], [n, od]), (&eps[..], [n, 1]), (&c[..], [n, k])];
+    let (got, raw) = onnxruntime_run(&model_path, &inputs, d.path());
+    assert_eq!(raw["shape"], json!([n, ad]), "{raw}");
     let mut actor = ess_actor::Actor::new(&w);
     let mut act = vec![0.0f32; ad];
     let mut worst = 0.0f32;
@@ -79,10 +117,14 @@ fn the_onnx_policy_gives_our_actions_in_tract() {
             &mut act,
         );
         for (j, a) in act.iter().enumerate() {
-            worst = worst.max((got[[row, j]] - a).abs());
+            worst = worst.max((got[row * ad + j] - a).abs());
         }
     }
-    assert!(worst <= 1e-5, "largest difference {worst}");
+    assert!(
+        worst <= 1e-5,
+        "largest difference {worst} (onnxruntime {})",
+        raw["version"]
+    );
 }
 
 #[test]
