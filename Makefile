@@ -38,11 +38,13 @@ lint: bootstrap
 	@$(ENV) && cargo clippy --workspace --all-targets --locked -- -D warnings
 
 ## Coverage-guided fuzzing of every parser with libFuzzer (cargo-fuzz, nightly):
-## FUZZ_SECONDS per target, or FUZZ_RUNS executions if they come first (-1: no limit);
+## FUZZ_SECONDS per target, or FUZZ_RUNS executions if they come first (-1: no limit;
+## per worker with FUZZ_JOBS > 1, libFuzzer's jobs mode: that many processes at once);
 ## new inputs go to fuzz/libfuzzer/corpus, crashes to fuzz/libfuzzer/artifacts
 ## (bench/fuzz.md). make test runs a short stable version.
 FUZZ_SECONDS ?= 300
 FUZZ_RUNS ?= -1
+FUZZ_JOBS ?= 1
 FUZZ_TARGETS ?= config task_file demos runlog shm job_spec
 fuzz:
 	@bash scripts/bootstrap.sh --fuzz
@@ -50,6 +52,7 @@ fuzz:
 	  mkdir -p fuzz/libfuzzer/corpus/$$t && \
 	  cargo +nightly fuzz run --fuzz-dir fuzz/libfuzzer $$t fuzz/libfuzzer/corpus/$$t fuzz/corpus/$$t -- \
 	    -max_total_time=$(FUZZ_SECONDS) -runs=$(FUZZ_RUNS) -rss_limit_mb=4096 -max_len=262144 -timeout=10 -print_final_stats=1 \
+	    $(if $(filter-out 1,$(FUZZ_JOBS)),-jobs=$(FUZZ_JOBS) -workers=$(FUZZ_JOBS)) \
 	    || exit 1; \
 	done
 
