@@ -66,10 +66,29 @@ enum Cmd {
     Replay(ReplayArgs),
 }
 
+impl Cmd {
+    /// Commands whose work is their output: lists, reports, inspections, job queries.
+    /// Not those that run trainings (`train`, `experts`, an experiment's cells) or
+    /// serve: a job's `ess train` stops *gracefully* when its progress pipe to the server
+    /// breaks, so it must see the write fail rather than die of SIGPIPE.
+    fn only_prints(&self) -> bool {
+        match self {
+            Cmd::Presets | Cmd::Report { .. } | Cmd::Replay(_) | Cmd::Job(_) => true,
+            Cmd::Demos { cmd } => matches!(cmd, DemosCmd::Inspect { .. }),
+            Cmd::Export(_) => true,
+            Cmd::Experiment(a) => a.only_prints(),
+            Cmd::Train(_) | Cmd::Experts { .. } | Cmd::Serve(_) => false,
+        }
+    }
+}
+
 fn main() {
     ess_learner::malloc::keep_freed_memory();
     ess_actor::logging::init();
     let cli = Cli::parse();
+    if cli.cmd.only_prints() {
+        end_quietly_on_closed_stdout();
+    }
     let r = match cli.cmd {
         Cmd::Train(a) => cli::train::train(a),
         Cmd::Demos { cmd } => cli::demos::demos(cmd),
@@ -105,5 +124,17 @@ fn main() {
             1
         };
         std::process::exit(code);
+    }
+}
+
+/// Output piped into a reader that stops early (`ess experiment SPEC --list | head`) ends
+/// the process quietly, as it does other Unix tools, instead of a panic in `println!`
+/// (Rust ignores SIGPIPE, so the write fails and `println!` panics). Only for
+/// [`Cmd::only_prints`]. Sockets are not affected: the standard library sends with
+/// `MSG_NOSIGNAL`.
+fn end_quietly_on_closed_stdout() {
+    // SAFETY: sets one signal's disposition back to the default, before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }

@@ -417,3 +417,25 @@ fn disc_obs_prefix_trains_on_a_prefix_and_a_too_long_one_is_rejected_before_writ
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert!(s["nmi"].as_f64().unwrap().is_finite(), "{s}");
 }
+
+#[test]
+fn output_into_a_closed_pipe_ends_quietly_without_a_panic() {
+    use nix::sys::signal::Signal;
+    use std::os::unix::process::ExitStatusExt;
+    // A pipe whose reader is gone before `ess` writes, as `| head` is after its lines.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = Command::new(ess_bin())
+        .arg("presets")
+        .stdout(writer)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(
+        out.status.signal(),
+        Some(Signal::SIGPIPE as i32),
+        "{:?}: {err}",
+        out.status
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}

@@ -44,6 +44,13 @@ pub struct ExperimentArgs {
     list: bool,
 }
 
+impl ExperimentArgs {
+    /// `--list` and `--report` only print; the other modes run cells.
+    pub fn only_prints(&self) -> bool {
+        self.list || self.report
+    }
+}
+
 pub fn experiment(a: ExperimentArgs) -> Result<()> {
     let spec = ExperimentSpec::load(&a.spec).map_err(input_err)?;
     let out = absolute(
