@@ -2,11 +2,12 @@
 //! mode ([`draw_trajectories`]) and line charts of metrics over training
 //! ([`draw_curves`]).
 //!
-//! Rendering uses `plotters` with the bitmap backend. Text needs a TrueType font,
-//! loaded once per process at run time from the first readable of: the `ESS_FONT`
-//! environment variable, DejaVu Sans, Liberation Sans, or any `*.ttf` under
-//! `/usr/share/fonts`. Without a font the figures are still drawn, only without any
-//! text (titles, tick labels, legends): a plot without labels beats no plot.
+//! Rendering uses `plotters` with the bitmap backend. Text is drawn with DejaVu Sans,
+//! built into the binary (the `dejavu` crate, ~740 KB), so a figure has its titles,
+//! ticks and legend on any machine, fonts installed or not, and looks the same
+//! everywhere; a TrueType file named by the `ESS_FONT` environment variable replaces it.
+//! The drawing code keeps a no-text mode (labels and legends left out), which the tests
+//! use to check that nothing in it depends on a font.
 //!
 //! Files are written atomically: the image is rendered to a temporary file in the
 //! destination directory and renamed into place, so readers never see half a PNG.
@@ -94,8 +95,6 @@ const FONT_FAMILY: &str = "sans-serif";
 const NO_FONT_FAMILY: &str = "ess-plot-no-font";
 /// Smallest panel side that leaves room for a plotting area.
 const MIN_PANEL_PX: u32 = 32;
-/// Bound on the directory walk under `/usr/share/fonts`.
-const MAX_FONT_WALK_DEPTH: usize = 6;
 
 /// Which font family text is drawn with, or `None` to draw no text at all.
 type Text = Option<&'static str>;
@@ -134,70 +133,33 @@ pub fn draw_curves(
     draw_curves_with(path, title, x_label, series, font_family())
 }
 
-/// Registers a font once per process; `Some(family)` if one could be loaded.
+/// Registers the font once per process: `ESS_FONT`'s file if it is one, else the
+/// built-in DejaVu Sans.
 fn font_family() -> Text {
     static LOADED: OnceLock<bool> = OnceLock::new();
-    LOADED
-        .get_or_init(register_first_font)
-        .then_some(FONT_FAMILY)
+    LOADED.get_or_init(register_font).then_some(FONT_FAMILY)
 }
 
-fn register_first_font() -> bool {
-    for candidate in font_candidates() {
-        let Ok(bytes) = std::fs::read(&candidate) else {
-            continue;
-        };
-        // plotters keeps `&'static` font bytes; this runs at most once per process and
-        // only leaks the few files tried before one parses.
+fn register_font() -> bool {
+    let from_env = std::env::var_os("ESS_FONT").and_then(|p| {
+        let bytes = std::fs::read(&p).ok();
+        if bytes.is_none() {
+            tracing::warn!(
+                "ESS_FONT {}: not readable; using DejaVu Sans",
+                Path::new(&p).display()
+            );
+        }
+        bytes
+    });
+    if let Some(bytes) = from_env {
+        // plotters keeps `&'static` font bytes; this runs at most once per process.
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
         if plotters::style::register_font(FONT_FAMILY, FontStyle::Normal, bytes).is_ok() {
             return true;
         }
+        tracing::warn!("ESS_FONT: not a TrueType font; using DejaVu Sans");
     }
-    false
-}
-
-/// Font files to try, best first.
-fn font_candidates() -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    if let Some(env) = std::env::var_os("ESS_FONT") {
-        out.push(PathBuf::from(env));
-    }
-    out.push(PathBuf::from(
-        "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    ));
-    out.push(PathBuf::from(
-        "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-    ));
-    let mut found = Vec::new();
-    walk_ttf(Path::new("/usr/share/fonts"), 0, &mut found);
-    found.sort();
-    out.extend(found);
-    out
-}
-
-fn walk_ttf(dir: &Path, depth: usize, found: &mut Vec<PathBuf>) {
-    if depth > MAX_FONT_WALK_DEPTH {
-        return;
-    }
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let path = entry.path();
-        match entry.file_type() {
-            Ok(t) if t.is_dir() => walk_ttf(&path, depth + 1, found),
-            Ok(_) => {
-                let is_ttf = path
-                    .extension()
-                    .is_some_and(|e| e.eq_ignore_ascii_case("ttf"));
-                if is_ttf {
-                    found.push(path);
-                }
-            }
-            Err(_) => {}
-        }
-    }
+    plotters::style::register_font(FONT_FAMILY, FontStyle::Normal, dejavu::sans::regular()).is_ok()
 }
 
 fn render_err(path: &Path) -> impl Fn(&dyn Display) -> PlotError + '_ {
@@ -617,6 +579,25 @@ mod tests {
         draw_curves(&out, "Disentanglement", "iteration", &curve_series()).expect("drawn");
         assert_eq!(png_size(&out), CURVES_SIZE);
         keep_for_inspection(&out, "curves.png");
+    }
+
+    #[test]
+    fn text_is_drawn_with_the_built_in_font_whatever_the_machine_has() {
+        // ESS_FONT is unset in tests: the font comes from the binary, not the system.
+        assert_eq!(font_family(), Some(FONT_FAMILY));
+        let (w, h) = (200u32, 60u32);
+        let mut buf = vec![255u8; (w * h * 3) as usize];
+        {
+            let area = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            let style = TextStyle::from((FONT_FAMILY, 30).into_font()).color(&BLACK);
+            area.draw_text("NMI 0.93", &style, (5, 10)).expect("drawn");
+            area.present().expect("presented");
+        }
+        let inked = buf.chunks(3).filter(|px| px[0] < 128).count();
+        assert!(
+            inked > 200,
+            "only {inked} dark pixels: no glyphs were drawn"
+        );
     }
 
     #[test]
