@@ -57,6 +57,12 @@ pub const FORMAT: &str = "ess-demos";
 pub const FORMAT_VERSION: u32 = 2;
 /// The version before checksums: still read, without them.
 const UNSEALED_VERSION: u32 = 1;
+/// The format as [`ess_proto::checksum::open`] checks it.
+const FILE_FORMAT: ess_proto::checksum::Format = ess_proto::checksum::Format {
+    name: FORMAT,
+    current: FORMAT_VERSION,
+    unsealed: UNSEALED_VERSION,
+};
 /// The in-memory mode of an unlabeled transition whose mode nobody knows (an imported
 /// episode without a label); stored as `-1` in the file, only in the unlabeled split.
 pub const UNKNOWN_MODE: u32 = u32::MAX;
@@ -264,49 +270,24 @@ pub enum DemoError {
         /// Underlying error, formatted.
         reason: String,
     },
-    /// The file is not a (complete) safetensors file.
-    #[error("{path}: not a valid safetensors file (truncated or corrupt): {reason}")]
-    NotSafetensors {
+    /// The file's layout, `format`, `format_version` or checksums are wrong
+    /// (truncated, corrupt, another format or version, a flipped byte).
+    #[error("{path}: {error}")]
+    Header {
         /// File read.
         path: PathBuf,
-        /// Parser message.
-        reason: String,
+        /// What is wrong, naming the key or tensor.
+        error: ess_proto::checksum::OpenError,
     },
-    /// A header metadata key is missing.
-    #[error("{path}: header metadata key {key:?} is missing")]
-    MissingHeaderKey {
-        /// File read.
-        path: PathBuf,
-        /// Missing key.
-        key: &'static str,
-    },
-    /// The `format` header key has the wrong value.
-    #[error("{path}: header format = {found:?}, expected {expected:?}")]
-    WrongFormat {
-        /// File read.
-        path: PathBuf,
-        /// Value found.
-        found: String,
-        /// Value expected.
-        expected: &'static str,
-    },
-    /// The `format_version` is not supported.
-    #[error("{path}: unsupported format_version {found:?}; this build reads version {supported}")]
+    /// The `format_version` inside `meta` is not one this build reads.
+    #[error(
+        "{path}: unsupported meta format_version {found}; this build reads versions {UNSEALED_VERSION} and {FORMAT_VERSION}"
+    )]
     UnsupportedVersion {
         /// File read.
         path: PathBuf,
         /// Version found.
-        found: String,
-        /// Version supported.
-        supported: u32,
-    },
-    /// The content does not match its checksums (a flipped byte, a cut file).
-    #[error("{path}: {error}")]
-    Checksum {
-        /// File read.
-        path: PathBuf,
-        /// Which tensor (or the metadata).
-        error: ess_proto::checksum::ChecksumError,
+        found: u32,
     },
     /// The `meta` header key is not valid [`DemoMeta`] JSON.
     #[error("{path}: header meta is not valid DemoMeta JSON: {error}")]
@@ -716,46 +697,18 @@ impl Demos {
     /// Parses and validates safetensors bytes; `path` is only used in errors.
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Demos, DemoError> {
         let p = || path.to_owned();
-        let not_st = |e: safetensors::SafeTensorError| DemoError::NotSafetensors {
-            path: p(),
-            reason: e.to_string(),
-        };
-        let st = SafeTensors::deserialize(bytes).map_err(not_st)?;
-        let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(not_st)?;
-        let empty = HashMap::new();
-        let header = metadata.metadata().as_ref().unwrap_or(&empty);
-        let get = |key: &'static str| {
-            header
-                .get(key)
-                .ok_or(DemoError::MissingHeaderKey { path: p(), key })
-        };
-        let format = get("format")?;
-        if format != FORMAT {
-            return Err(DemoError::WrongFormat {
-                path: p(),
-                found: format.clone(),
-                expected: FORMAT,
-            });
-        }
-        let version = get("format_version")?;
-        let version_n = version.trim().parse::<u32>().ok();
-        if !matches!(version_n, Some(UNSEALED_VERSION | FORMAT_VERSION)) {
-            return Err(DemoError::UnsupportedVersion {
-                path: p(),
-                found: version.clone(),
-                supported: FORMAT_VERSION,
-            });
-        }
-        ess_proto::checksum::verify(bytes, version_n == Some(UNSEALED_VERSION))
-            .map_err(|error| DemoError::Checksum { path: p(), error })?;
+        let header_err = |error| DemoError::Header { path: p(), error };
+        let file = ess_proto::checksum::open(bytes, FILE_FORMAT).map_err(header_err)?;
         let meta: DemoMeta =
-            serde_json::from_str(get("meta")?).map_err(|e| DemoError::BadMeta {
-                path: p(),
-                error: e.to_string(),
+            serde_json::from_str(file.get("meta").map_err(header_err)?).map_err(|e| {
+                DemoError::BadMeta {
+                    path: p(),
+                    error: e.to_string(),
+                }
             })?;
         validate_meta(&meta, path)?;
-        let unlabeled = read_split(&st, SPLITS[0], &meta, path)?;
-        let labeled = read_split(&st, SPLITS[1], &meta, path)?;
+        let unlabeled = read_split(&file.tensors, SPLITS[0], &meta, path)?;
+        let labeled = read_split(&file.tensors, SPLITS[1], &meta, path)?;
         let checks = [
             (
                 "unlabeled_episodes_per_mode",
@@ -801,8 +754,7 @@ fn validate_meta(meta: &DemoMeta, path: &Path) -> Result<(), DemoError> {
     if !matches!(meta.format_version, UNSEALED_VERSION | FORMAT_VERSION) {
         return Err(DemoError::UnsupportedVersion {
             path: path.to_owned(),
-            found: meta.format_version.to_string(),
-            supported: FORMAT_VERSION,
+            found: meta.format_version,
         });
     }
     for (field, value) in [
@@ -1319,16 +1271,16 @@ mod tests {
         let bytes = RawFile::of(&small_demos()).bytes();
         for cut in [3, 20, bytes.len() / 2, bytes.len() - 1] {
             let msg = load_bytes_err(&bytes[..cut]);
-            assert_names(&msg, &["not a valid safetensors file"]);
+            assert_names(&msg, &["not a safetensors file"]);
         }
     }
 
     #[test]
     fn garbage_bytes_are_rejected_as_not_safetensors() {
         let msg = load_bytes_err(b"this is certainly not a safetensors file at all");
-        assert_names(&msg, &["not a valid safetensors file"]);
+        assert_names(&msg, &["not a safetensors file"]);
         let msg = load_bytes_err(b"");
-        assert_names(&msg, &["not a valid safetensors file"]);
+        assert_names(&msg, &["not a safetensors file"]);
     }
 
     #[test]

@@ -35,7 +35,7 @@ use ess_proto::{Mlp, MlpLayout};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
-use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use safetensors::tensor::{Dtype, TensorView};
 use serde::{Deserialize, Serialize};
 
 use crate::env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome};
@@ -46,6 +46,12 @@ pub const FORMAT: &str = "ess-expert";
 pub const FORMAT_VERSION: u32 = 2;
 /// The version before checksums: still read, without them.
 const UNSEALED_VERSION: u32 = 1;
+/// The format as [`ess_proto::checksum::open`] checks it.
+const FILE_FORMAT: ess_proto::checksum::Format = ess_proto::checksum::Format {
+    name: FORMAT,
+    current: FORMAT_VERSION,
+    unsealed: UNSEALED_VERSION,
+};
 
 /// What an expert file says about itself.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -269,31 +275,10 @@ impl ExpertPolicy {
 
     /// Parses and validates safetensors bytes.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, String> {
-        let st = SafeTensors::deserialize(bytes)
-            .map_err(|e| format!("not a safetensors file (truncated or corrupt): {e}"))?;
-        let (_, md) = SafeTensors::read_metadata(bytes).map_err(|e| e.to_string())?;
-        let empty = HashMap::new();
-        let header = md.metadata().as_ref().unwrap_or(&empty);
-        let get = |key: &str| {
-            header
-                .get(key)
-                .ok_or_else(|| format!("header key {key:?} is missing"))
-        };
-        let format = get("format")?;
-        if format != FORMAT {
-            return Err(format!("header format = {format:?}, expected {FORMAT:?}"));
-        }
-        let version = get("format_version")?;
-        let version_n = version.trim().parse::<u32>().ok();
-        if !matches!(version_n, Some(UNSEALED_VERSION | FORMAT_VERSION)) {
-            return Err(format!(
-                "unsupported format_version {version:?}; this build reads versions {UNSEALED_VERSION} and {FORMAT_VERSION}"
-            ));
-        }
-        ess_proto::checksum::verify(bytes, version_n == Some(UNSEALED_VERSION))
-            .map_err(|e| e.to_string())?;
-        let meta: ExpertMeta =
-            serde_json::from_str(get("meta")?).map_err(|e| format!("header meta: {e}"))?;
+        let file = ess_proto::checksum::open(bytes, FILE_FORMAT).map_err(|e| e.to_string())?;
+        let meta: ExpertMeta = serde_json::from_str(file.get("meta").map_err(|e| e.to_string())?)
+            .map_err(|e| format!("header meta: {e}"))?;
+        let st = &file.tensors;
         let read = |name: &str| -> Result<Vec<f32>, String> {
             let t = st
                 .tensor(name)

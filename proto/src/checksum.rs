@@ -12,6 +12,9 @@
 //! except inside values), by a tensor's hash (dtype, shape, offsets) or by the metadata
 //! hash.
 //!
+//! [`open`] is the one header check of Ess's own formats (demonstrations, experts): it
+//! parses a file once, then checks its layout, `format`, `format_version` and seal.
+//!
 //! Files written before the seal existed have no `ess.sha256` entry. Only a caller that
 //! can tell such a file by its own version number (demonstrations and experts of format
 //! version 1) accepts it unsealed ([`Seal::Absent`]); every other file without a seal is
@@ -132,7 +135,16 @@ pub fn verify(bytes: &[u8], legacy: bool) -> Result<Seal, ChecksumError> {
     let st = SafeTensors::deserialize(bytes).map_err(layout)?;
     let (_, md) = SafeTensors::read_metadata(bytes).map_err(layout)?;
     let empty = HashMap::new();
-    let metadata = md.metadata().as_ref().unwrap_or(&empty);
+    verify_parsed(&st, md.metadata().as_ref().unwrap_or(&empty), legacy)
+}
+
+/// [`verify`] on a file already parsed into its tensors and header metadata.
+fn verify_parsed(
+    st: &SafeTensors<'_>,
+    metadata: &HashMap<String, String>,
+    legacy: bool,
+) -> Result<Seal, ChecksumError> {
+    let layout = |e: safetensors::SafeTensorError| ChecksumError::Layout(e.to_string());
     let Some(json) = metadata.get(KEY) else {
         return if legacy {
             Ok(Seal::Absent)
@@ -160,6 +172,116 @@ pub fn verify(bytes: &[u8], legacy: bool) -> Result<Seal, ChecksumError> {
         Some(extra) => Err(ChecksumError::Names(extra)),
         None => Ok(Seal::Verified),
     }
+}
+
+/// The versions of one of Ess's file formats that a build reads.
+#[derive(Debug, Clone, Copy)]
+pub struct Format {
+    /// Value of the `format` header key.
+    pub name: &'static str,
+    /// The version written now (sealed).
+    pub current: u32,
+    /// The last version before seals, still read unverified.
+    pub unsealed: u32,
+}
+
+/// A file of an Ess format, parsed once, its header and seal checked by [`open`].
+pub struct Opened<'a> {
+    /// The tensors.
+    pub tensors: SafeTensors<'a>,
+    /// The header's metadata entries (`format`, `format_version`, the seal, the rest).
+    pub header: HashMap<String, String>,
+    /// The file's `format_version`.
+    pub version: u32,
+    /// Whether the seal was verified or the version predates seals.
+    pub seal: Seal,
+}
+
+impl Opened<'_> {
+    /// The header entry `key`, or [`OpenError::MissingKey`].
+    pub fn get(&self, key: &'static str) -> Result<&str, OpenError> {
+        header_get(&self.header, key)
+    }
+}
+
+fn header_get<'h>(
+    header: &'h HashMap<String, String>,
+    key: &'static str,
+) -> Result<&'h str, OpenError> {
+    header
+        .get(key)
+        .map(String::as_str)
+        .ok_or(OpenError::MissingKey(key))
+}
+
+/// Why [`open`] refused a file: its layout, header or seal.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum OpenError {
+    /// Not parseable as safetensors at all.
+    #[error("not a safetensors file (truncated or corrupt): {0}")]
+    Layout(String),
+    /// A header entry the format requires is missing.
+    #[error("header key {0:?} is missing")]
+    MissingKey(&'static str),
+    /// The file is of another format.
+    #[error("header format = {found:?}, expected {expected:?}")]
+    WrongFormat {
+        /// The `format` the file names.
+        found: String,
+        /// The format asked for.
+        expected: &'static str,
+    },
+    /// A `format_version` this build does not read.
+    #[error(
+        "unsupported format_version {found:?}; this build reads versions {unsealed} and {current}"
+    )]
+    UnsupportedVersion {
+        /// The version the file names.
+        found: String,
+        /// The version before seals.
+        unsealed: u32,
+        /// The version written now.
+        current: u32,
+    },
+    /// The content does not match the seal.
+    #[error(transparent)]
+    Checksum(#[from] ChecksumError),
+}
+
+/// Parses `bytes` once and checks, in order, the layout, the `format` and
+/// `format_version` header entries against `format`, and the seal (a file of the
+/// unsealed version loads unverified): the one sequence every loader of Ess's own
+/// formats runs before reading its fields.
+pub fn open<'a>(bytes: &'a [u8], format: Format) -> Result<Opened<'a>, OpenError> {
+    let layout = |e: safetensors::SafeTensorError| OpenError::Layout(e.to_string());
+    let tensors = SafeTensors::deserialize(bytes).map_err(layout)?;
+    let (_, md) = SafeTensors::read_metadata(bytes).map_err(layout)?;
+    let header = md.metadata().clone().unwrap_or_default();
+    let found = header_get(&header, "format")?;
+    if found != format.name {
+        return Err(OpenError::WrongFormat {
+            found: found.to_string(),
+            expected: format.name,
+        });
+    }
+    let raw = header_get(&header, "format_version")?;
+    let version = match raw.trim().parse::<u32>() {
+        Ok(v) if v == format.current || v == format.unsealed => v,
+        _ => {
+            return Err(OpenError::UnsupportedVersion {
+                found: raw.to_string(),
+                unsealed: format.unsealed,
+                current: format.current,
+            });
+        }
+    };
+    let seal = verify_parsed(&tensors, &header, version == format.unsealed)?;
+    Ok(Opened {
+        tensors,
+        header,
+        version,
+        seal,
+    })
 }
 
 #[cfg(test)]
@@ -218,5 +340,55 @@ mod tests {
         let bytes = safetensors::serialize([("a", v)], None).unwrap();
         assert_eq!(verify(&bytes, true), Ok(Seal::Absent));
         assert_eq!(verify(&bytes, false), Err(ChecksumError::Missing));
+    }
+
+    const F: Format = Format {
+        name: "ess-test",
+        current: 2,
+        unsealed: 1,
+    };
+
+    fn unsealed(header: &[(&str, &str)]) -> Vec<u8> {
+        let a = [0u8; 4];
+        let v = TensorView::new(Dtype::F32, vec![1], &a).unwrap();
+        let md = header.iter().map(|(k, v)| (k.to_string(), v.to_string()));
+        safetensors::serialize([("a", v)], Some(md.collect())).unwrap()
+    }
+
+    #[test]
+    fn open_checks_format_version_and_seal_in_that_order() {
+        let ok = file(&[
+            ("format", "ess-test"),
+            ("format_version", "2"),
+            ("meta", "m"),
+        ]);
+        let opened = open(&ok, F).unwrap();
+        assert_eq!((opened.version, opened.seal), (2, Seal::Verified));
+        assert_eq!(opened.get("meta"), Ok("m"));
+        assert_eq!(
+            opened.get("nope").err(),
+            Some(OpenError::MissingKey("nope"))
+        );
+        let old = unsealed(&[("format", "ess-test"), ("format_version", "1")]);
+        assert_eq!(open(&old, F).map(|o| o.seal).ok(), Some(Seal::Absent));
+        let err = |bytes: &[u8]| open(bytes, F).err().map(|e| e.to_string());
+        let unsealed_v2 = unsealed(&[("format", "ess-test"), ("format_version", "2")]);
+        assert_eq!(err(&unsealed_v2), Some(ChecksumError::Missing.to_string()));
+        let other = file(&[("format", "ess-other"), ("format_version", "2")]);
+        assert_eq!(
+            err(&other).as_deref(),
+            Some(r#"header format = "ess-other", expected "ess-test""#)
+        );
+        let v3 = file(&[("format", "ess-test"), ("format_version", "3")]);
+        assert_eq!(
+            err(&v3).as_deref(),
+            Some(r#"unsupported format_version "3"; this build reads versions 1 and 2"#)
+        );
+        let no_version = file(&[("format", "ess-test")]);
+        assert_eq!(
+            err(&no_version).as_deref(),
+            Some(r#"header key "format_version" is missing"#)
+        );
+        assert!(err(b"junk").unwrap().starts_with("not a safetensors file"));
     }
 }
