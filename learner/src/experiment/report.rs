@@ -215,12 +215,34 @@ pub fn figure(
                 .collect()
         }
     };
-    let x_label = match spec.figure {
-        Figure::Curves => "env steps",
-        _ => "variant x",
+    let (series, x_label) = match spec.figure {
+        Figure::Curves => (series, "env steps"),
+        _ => match log10_x_if_wide(&series) {
+            Some(logged) => (logged, "log10 of variant x"),
+            None => (series, "variant x"),
+        },
     };
     draw_curves(&path, &format!("{}: {m}", spec.name), x_label, &series)?;
     Ok(Some(path))
+}
+
+/// The series with x as log10(x) when every x is positive and they span two decades
+/// or more (Fig. 6's label ratios, 0.1% to 100%, would otherwise crowd into the first
+/// pixels of a linear axis); `None` to keep them as they are.
+fn log10_x_if_wide(series: &[(String, Vec<(f64, f64)>)]) -> Option<Vec<(String, Vec<(f64, f64)>)>> {
+    let xs = || series.iter().flat_map(|(_, pts)| pts.iter().map(|p| p.0));
+    let lo = xs().fold(f64::INFINITY, f64::min);
+    let hi = xs().fold(f64::NEG_INFINITY, f64::max);
+    if !(lo > 0.0 && hi.is_finite() && hi / lo >= 100.0) {
+        return None;
+    }
+    let logged = series.iter().map(|(name, pts)| {
+        (
+            name.clone(),
+            pts.iter().map(|&(x, y)| (x.log10(), y)).collect(),
+        )
+    });
+    Some(logged.collect())
 }
 
 /// The finished cells grouped by their values on `a` (and `b` where it differs and has
@@ -298,5 +320,20 @@ mod tests {
             Some(0.910)
         );
         assert_eq!(paper_value(&s, "gail", "traj2d", "normalized_reward"), None);
+    }
+
+    #[test]
+    fn variants_spanning_two_decades_are_plotted_on_log10_x() {
+        let s = |xs: &[f64]| vec![("a".to_string(), xs.iter().map(|&x| (x, 1.0)).collect())];
+        let logged = log10_x_if_wide(&s(&[0.1, 0.5, 1.0, 10.0, 100.0])).expect("wide");
+        let xs: Vec<f64> = logged[0].1.iter().map(|p| p.0).collect();
+        let want = [-1.0, 0.5f64.log10(), 0.0, 1.0, 2.0];
+        assert!(
+            xs.iter().zip(want).all(|(x, w)| (x - w).abs() < 1e-12),
+            "{xs:?}"
+        );
+        assert!(log10_x_if_wide(&s(&[2.0, 4.0, 12.0])).is_none());
+        assert!(log10_x_if_wide(&s(&[0.0, 10.0, 1000.0])).is_none());
+        assert!(log10_x_if_wide(&[]).is_none());
     }
 }
