@@ -180,7 +180,7 @@ pub fn figure(
 ) -> Result<Option<PathBuf>, PlotError> {
     let path = out.join(format!("{}.png", spec.name));
     let m = &spec.figure_metric;
-    let series: Vec<(String, Vec<(f64, f64)>)> = match spec.figure {
+    let series: Vec<Curve> = match spec.figure {
         Figure::None => return Ok(None),
         Figure::Curves => group(spec, cells, results, spec.rows, spec.columns)
             .into_iter()
@@ -226,10 +226,13 @@ pub fn figure(
     Ok(Some(path))
 }
 
+/// One named line of a figure: `(x, y)` points.
+type Curve = (String, Vec<(f64, f64)>);
+
 /// The series with x as log10(x) when every x is positive and they span two decades
 /// or more (Fig. 6's label ratios, 0.1% to 100%, would otherwise crowd into the first
 /// pixels of a linear axis); `None` to keep them as they are.
-fn log10_x_if_wide(series: &[(String, Vec<(f64, f64)>)]) -> Option<Vec<(String, Vec<(f64, f64)>)>> {
+fn log10_x_if_wide(series: &[Curve]) -> Option<Vec<Curve>> {
     let xs = || series.iter().flat_map(|(_, pts)| pts.iter().map(|p| p.0));
     let lo = xs().fold(f64::INFINITY, f64::min);
     let hi = xs().fold(f64::NEG_INFINITY, f64::max);
