@@ -20,7 +20,8 @@
 //!   terminal's Ctrl-C reaches only the server, which stops them once.
 //! - **Records** are rewritten at each state change and iteration; a server started on
 //!   the same data dir lists past jobs, queues the ones that were queued, and marks the
-//!   ones that were running FAILED (resumable).
+//!   ones that were running FAILED (resumable). A record's run directory is where it is
+//!   found, so a data dir may be moved or copied between runs.
 //! - **Watchers** subscribe to a per-job `tokio::sync::broadcast` channel; a watcher
 //!   that falls behind (lags) is caught up from the job's in-memory iteration history,
 //!   so slow watchers never block the job and still see every iteration.
@@ -113,7 +114,13 @@ impl Manager {
                 continue;
             };
             match serde_json::from_str::<JobRecord>(&text) {
-                Ok(r) => records.push(r),
+                // The directory the record lies in is the run's, wherever it was
+                // written: a data dir copied or moved (a grid's results brought back
+                // from a cluster) resumes in its new place.
+                Ok(r) => records.push(JobRecord {
+                    run_dir: e.path(),
+                    ..r
+                }),
                 Err(err) => {
                     tracing::warn!(file = %path.display(), error = %err, "skipping an unreadable job record")
                 }
@@ -635,5 +642,48 @@ fn terminate(pid: u32) {
         nix::sys::signal::Signal::SIGTERM,
     ) {
         tracing::warn!(pid, error = %e, "cannot signal the job process");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A stopped job's record as the manager wrote it in `old`'s data dir.
+    fn stopped_record(old: &std::path::Path) -> String {
+        serde_json::json!({
+            "id": "gail.traj2d.s0", "seq": 1, "preset": "gail", "state": "stopped",
+            "spec": {"preset": "gail", "env": "traj2d", "seed": 0, "overrides": [],
+                     "config_toml": ""},
+            "iteration": 3, "iterations": 10, "env_steps": 300, "cores": 1,
+            "torch_threads": null, "run_dir": old.join("jobs/gail.traj2d.s0"),
+            "created_unix_ms": 1, "started_unix_ms": 2, "finished_unix_ms": 3,
+            "error": "", "result": null, "resumes": 0, "resume_next": false,
+            "stop_requested": true,
+        })
+        .to_string()
+    }
+
+    #[tokio::test]
+    async fn a_moved_data_dir_keeps_its_jobs_in_their_new_place() {
+        let new = tempfile::tempdir().unwrap();
+        let run = new.path().join("jobs/gail.traj2d.s0");
+        std::fs::create_dir_all(&run).unwrap();
+        let old = std::path::Path::new("/nonexistent/grid");
+        std::fs::write(run.join("job.json"), stopped_record(old)).unwrap();
+        let m = Manager::open(ManagerConfig {
+            data_dir: new.path().to_path_buf(),
+            cores: 1,
+            exe: "/bin/false".into(),
+            stop_grace: Duration::from_secs(1),
+        })
+        .unwrap();
+        let job = m.get("gail.traj2d.s0").unwrap();
+        assert_eq!(job.run_dir, run.display().to_string());
+        // Resuming writes the record where it now lies, not under the old path.
+        m.resume("gail.traj2d.s0").unwrap();
+        let text = std::fs::read_to_string(run.join("job.json")).unwrap();
+        assert!(text.contains(&*run.to_string_lossy()), "{text}");
+        m.shutdown().await;
     }
 }
