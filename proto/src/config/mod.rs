@@ -7,6 +7,9 @@
 //! merged table is deserialized (`deny_unknown_fields`) and then checked once by
 //! [`TrainConfig::check`] into a [`CheckedConfig`], whose values are in range.
 
+mod remote;
+
+pub use remote::{RemoteConfig, valid_host_name};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -563,6 +566,8 @@ pub struct TrainConfig {
     pub disc: DiscConfig,
     /// Run budget and evaluation.
     pub run: RunConfig,
+    /// Actor hosts on other machines (none by default).
+    pub remote: RemoteConfig,
 }
 
 /// A configuration whose values have been checked to be in range.
@@ -1051,6 +1056,7 @@ impl TrainConfig {
             r.log_chunk_steps,
             "must be in 1..=100000",
         )?;
+        self.remote.check()?;
         Ok(CheckedConfig(self))
     }
 }
