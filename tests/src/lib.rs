@@ -1,6 +1,8 @@
 //! Helpers for the cross-process tests in `tests/tests/`: they run the real `ess`
 //! binary (built by `make test` before the tests) and check what it prints and writes.
 
+pub mod pki;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 
