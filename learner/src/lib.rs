@@ -20,6 +20,7 @@
 //! | [`export`] | `ess export RUN_DIR --onnx FILE`: the trained policy as a standard ONNX model ([`export::onnx`]) |
 //! | [`experts`] | per-mode expert policies: PPO, and SAC ([`experts::sac`]) where PPO falls short |
 //! | [`actors`] | the launcher and supervisor of `ess-actor` processes over iceoryx2 ([`actors::ShmActors`]) |
+//! | [`remote`] | actor hosts on other machines over zenoh: [`remote::RemoteActors`] (the learner's side) and `ess actor-host` ([`remote::run_host`]) |
 //!
 //! Beside them: [`presets`] (the method presets, embedded), [`progress`] (`ess train
 //! --progress jsonl`), [`malloc`] (glibc settings that spare the learner's steps page
@@ -38,6 +39,7 @@ pub mod malloc;
 pub mod objective;
 pub mod presets;
 pub mod progress;
+pub mod remote;
 pub mod runlog;
 pub mod tensor_file;
 pub mod train;

@@ -53,6 +53,9 @@ enum Cmd {
     Serve(ServeArgs),
     /// Talk to a job server: submit, list, get, watch, stop, resume jobs.
     Job(JobArgs),
+    /// Run this machine's actor processes for a learner on another machine (its
+    /// `[remote]` config), over zenoh with mutual TLS.
+    ActorHost(cli::actor_host::ActorHostArgs),
     /// Table 1 view of finished runs: a row per run, mean ± std per env and method
     /// beside the paper's value (Markdown).
     Report {
@@ -77,7 +80,7 @@ impl Cmd {
             Cmd::Demos { cmd } => matches!(cmd, DemosCmd::Inspect { .. }),
             Cmd::Export(_) => true,
             Cmd::Experiment(a) => a.only_prints(),
-            Cmd::Train(_) | Cmd::Experts { .. } | Cmd::Serve(_) => false,
+            Cmd::Train(_) | Cmd::Experts { .. } | Cmd::Serve(_) | Cmd::ActorHost(_) => false,
         }
     }
 }
@@ -96,6 +99,7 @@ fn main() {
         Cmd::Replay(a) => cli::replay::replay(a),
         Cmd::Export(a) => cli::export::export(a),
         Cmd::Experiment(a) => cli::experiment::experiment(a),
+        Cmd::ActorHost(a) => cli::actor_host::actor_host(a),
         Cmd::Serve(a) => runtime().and_then(|rt| rt.block_on(cli::serve::serve(a))),
         Cmd::Job(a) => runtime().and_then(|rt| rt.block_on(cli::job::job(a))),
         Cmd::Report { runs } => runs

@@ -1,6 +1,7 @@
 //! The subcommands of `ess`, one module each, and what they share: the config flags
 //! and their layers, input errors (exit 2), the stop flag and the async runtime.
 
+pub mod actor_host;
 pub mod demos;
 pub mod experiment;
 pub mod experts;

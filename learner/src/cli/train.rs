@@ -142,6 +142,7 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
     if cfg.run.transport == ess_proto::config::ActorTransport::Processes {
         ess_learner::actors::actor_binary().map_err(input_err)?;
     }
+    ess_learner::remote::check_files(&cfg.remote).map_err(input_err)?;
     let out = args.resume.clone().or(args.out).unwrap_or_else(|| {
         PathBuf::from(format!(
             "runs/{}-{}-s{}",

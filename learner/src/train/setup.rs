@@ -6,6 +6,7 @@ use super::records::{CSV_HEADER, truncate_metrics};
 use super::{LoopState, Progress, Trainer};
 use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
 use crate::eval::Reference;
+use crate::remote::{Assign, RemoteActors, RemoteError, RemoteSetup};
 use crate::train::nets::{Discriminator, obs_columns};
 use crate::train::optim::Adam;
 use crate::train::ppo::PpoLearner;
@@ -26,6 +27,9 @@ use tch::nn;
 /// A configuration that the env it names cannot take; the CLI exits 2 on it.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainInputError {
+    /// A `[remote]` file (CA, certificate, key) that cannot serve.
+    #[error("{0}")]
+    RemoteTls(String),
     /// `disc.obs_prefix` longer than the observation.
     #[error("disc.obs_prefix = {prefix} exceeds env `{env}`'s observation length {obs_dim}")]
     DiscObsPrefix {
@@ -159,8 +163,48 @@ fn evaluation_note(env: &dyn Env, demos: &Demos) -> String {
 }
 
 /// The run's actors: threads of this process, or `ess-actor` processes over iceoryx2
-/// shared memory (`run.transport`).
+/// shared memory (`run.transport`); with `[remote]`, those plus actor hosts on other
+/// machines ([`crate::remote`]).
 fn rollout_source(
+    cfg: &CheckedConfig,
+    latent: LatentSpec,
+    k: usize,
+) -> Result<Box<dyn RolloutSource>> {
+    let local = local_rollout_source(cfg, latent, k)?;
+    if !cfg.remote.enabled() {
+        return Ok(local);
+    }
+    let run = new_run_id();
+    let template = Assign {
+        run,
+        env: cfg.env.name.clone(),
+        n_modes: cfg.env.n_modes,
+        plain_env: is_task(cfg),
+        prior: latent.prior,
+        n_codes: latent.n_codes,
+        tau: latent.tau,
+        use_eps: latent.use_eps,
+        first_actor: 0,
+        seeds: Vec::new(),
+        max_steps: cfg.run.rollout_steps,
+        actor_timeout_s: cfg.run.actor_timeout_s,
+    };
+    let setup = RemoteSetup {
+        remote: cfg.remote.clone(),
+        run_seed: cfg.run.seed,
+        template,
+    };
+    match RemoteActors::start(local, setup) {
+        Ok(r) => Ok(Box::new(r)),
+        Err(e @ RemoteError::TlsFile { .. }) => {
+            Err(TrainInputError::RemoteTls(e.to_string()).into())
+        }
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// This machine's actors.
+fn local_rollout_source(
     cfg: &CheckedConfig,
     latent: LatentSpec,
     k: usize,
@@ -182,7 +226,12 @@ fn rollout_source(
                 env: cfg.env.name.clone(),
                 n_modes: cfg.env.n_modes,
                 latent,
-                max_steps: cfg.run.rollout_steps.div_ceil(n),
+                // With remote hosts, a lost host's share may fall on the local actors.
+                max_steps: if cfg.remote.enabled() {
+                    cfg.run.rollout_steps
+                } else {
+                    cfg.run.rollout_steps.div_ceil(n)
+                },
                 seeds,
                 heartbeat_timeout: Duration::from_secs_f64(cfg.run.actor_timeout_s),
                 // Process start and env construction (MuJoCo model, expert weights).
