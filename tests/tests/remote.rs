@@ -2,8 +2,9 @@
 //! namespace the test makes (a veth pair, its own address; removed afterwards), with
 //! certificates made by `openssl`: a run with one local actor and one actor on each of
 //! two hosts trains to the same numbers as three local actors; a host whose link is
-//! cut mid-run is dropped with a warning and the run finishes on the others; a host
-//! whose certificate another CA signed is refused. Needs root (network namespaces).
+//! cut mid-run is dropped with a warning and the run finishes on the others; a host may
+//! join mid-run; a host whose certificate another CA signed is refused. Needs root
+//! (network namespaces).
 
 use ess_tests::pki::Pki;
 use ess_tests::{SMOKE, actor_bin, ess, ess_bin};
@@ -280,10 +281,11 @@ fn hosts_in_other_namespaces_train_like_local_actors_survive_a_cut_and_refuse_st
     ];
     let cut = tmp.path().join("cut");
     let mut args = train_args(&cut, &["--actors", "1", "--config", cfg.to_str().unwrap()]);
-    // Long enough (~10 ms an iteration) that the cut falls well inside the run.
+    // Long enough (~10 ms an iteration) that the cut and a late join fall well inside
+    // the run.
     args.extend_from_slice(&[
         "--set",
-        "run.iterations=300",
+        "run.iterations=500",
         "--set",
         "run.eval_every=1000",
     ]);
@@ -308,11 +310,25 @@ fn hosts_in_other_namespaces_train_like_local_actors_survive_a_cut_and_refuse_st
         "stranger",
     );
     a.cut();
+    let late = actor_host(None, &format!("tls/127.0.0.1:{port}"), "hd", &pki, "client");
     let o = learner.wait_with_output().unwrap();
     let log = String::from_utf8_lossy(&o.stderr);
-    let host_logs: Vec<_> = hosts.into_iter().map(|h| host_log(h, 10)).collect();
+    let host_logs: Vec<_> = hosts
+        .into_iter()
+        .chain([late])
+        .map(|h| host_log(h, 10))
+        .collect();
     assert!(o.status.success(), "cut run: {log}\nhosts: {host_logs:?}");
-    assert_eq!(summary(&cut)["iterations"], 300, "{log}");
+    assert_eq!(summary(&cut)["iterations"], 500, "{log}");
+    assert!(
+        log.contains("actor host joined host=hd"),
+        "a host joins mid-run: {log}"
+    );
+    assert_eq!(
+        host_logs[2].0,
+        Some(0),
+        "the late host ends with the run: {host_logs:?}"
+    );
     assert!(
         log.contains("actor host lost") && log.contains("host=ha"),
         "a warning names the lost host: {log}"

@@ -40,6 +40,9 @@ pub struct RemoteSetup {
 struct Host {
     name: String,
     actors: usize,
+    /// Global index of its first actor (stamped in its chunks; fixed at its join, while
+    /// its place in the rollout's split moves up when a host before it is lost).
+    first: usize,
 }
 
 /// Local actors plus remote hosts (see the module doc of [`super`]).
@@ -160,6 +163,7 @@ impl RemoteActors {
                 self.hosts.push(Host {
                     name: name.to_owned(),
                     actors: n,
+                    first,
                 });
             }
             Err(e) => tracing::warn!(host = %name, error = %e, "actor host left out"),
@@ -230,9 +234,9 @@ impl RemoteActors {
         }
     }
 
-    /// Every chunk of host `name`'s answer, actor `first + j` in slot `j`, checked against
-    /// `split` (its actors' shares); an error once the host's token goes or its answer
-    /// fails.
+    /// Every chunk of host `name`'s answer, its actor `first + j` (global index) in slot
+    /// `j`, checked against `split` (its actors' shares); an error once the host's token
+    /// goes or its answer fails.
     fn gather(
         &mut self,
         name: &str,
@@ -274,7 +278,10 @@ impl RemoteActors {
         }
         let got = slots.iter().flatten().count();
         if got < slots.len() {
-            return Err(format!("answered {got} of {} chunks", slots.len()));
+            return Err(format!(
+                "its answer ended after {got} of {} chunks (link lost?)",
+                slots.len()
+            ));
         }
         Ok(slots.into_iter().flatten().collect())
     }
@@ -320,17 +327,17 @@ impl RolloutSource for RemoteActors {
         self.request_id += 1;
         let msg = weights_msg(&weights, &self.latent, &self.setup.template.run);
         let mut asked = Vec::new();
-        let mut first = n_local;
+        let mut at = n_local;
         for h in &self.hosts {
-            let share = &split[first..first + h.actors];
+            let share = &split[at..at + h.actors];
             let rpc = Rpc::Collect {
                 steps: share.iter().sum::<usize>() as u64,
                 request_id: self.request_id,
                 weights: msg.clone(),
             };
             let rx = self.query(&h.name, &rpc, ANSWER_TIMEOUT);
-            asked.push((h.name.clone(), first, share.to_vec(), rx));
-            first += h.actors;
+            asked.push((h.name.clone(), h.first, share.to_vec(), rx));
+            at += h.actors;
         }
         let local_steps = split[..n_local].iter().sum();
         let mut out = self.local.collect(weights.clone(), local_steps)?;

@@ -28,8 +28,9 @@
 //! **Credentials.** Links are TLS only, mutual: the learner listens on `remote.listen`
 //! (`tls/ADDR:PORT`) with `remote.tls_cert`/`tls_key`, and accepts only hosts presenting
 //! a certificate signed by `remote.tls_ca`; hosts check the learner's certificate
-//! against the same CA and the dialled address. Multicast and gossip scouting are off:
-//! nothing is discovered, nothing but the configured endpoint is dialled.
+//! against the same CA and the dialled address. Multicast scouting is off: nothing is
+//! discovered on the network, hosts dial the configured endpoint only (they are zenoh
+//! clients, which take no part in gossip).
 //!
 //! **Limits.** Evaluation episodes run on the local actors. A checkpoint of a run with
 //! hosts keeps no actor states (hosts' episodes are not carried), so its resume starts
@@ -150,7 +151,7 @@ enum Side<'a> {
     Host { learner: &'a str, connect: Duration },
 }
 
-/// A zenoh session config: mutual TLS with `tls`, no scouting, `lease` as the time after
+/// A zenoh session config: mutual TLS with `tls`, no multicast scouting, `lease` as the time after
 /// which a silent peer's session (and its liveliness tokens) ends.
 fn session_config(
     side: Side<'_>,
@@ -186,7 +187,7 @@ fn session_config(
     tls_conf[side_keys.1] = serde_json::json!(abs(tls.key));
     let mut conf = serde_json::json!({
         "mode": mode,
-        "scouting": {"multicast": {"enabled": false}, "gossip": {"enabled": false}},
+        "scouting": {"multicast": {"enabled": false}},
         "transport": {"link": {
             "tls": tls_conf,
             "tx": {"lease": lease.as_millis().max(500) as u64},
