@@ -137,6 +137,18 @@ fn remote_config(dir: &Path, port: u16, hosts: &[&str], pki: &Pki) -> PathBuf {
     path
 }
 
+/// A learner config on a free port waiting for hosts `ha` and `hb`, and those hosts
+/// (one actor each) started in namespaces `ns[0]` and `ns[1]`.
+fn two_hosts(dir: &Path, ns: [&Netns; 2], pki: &Pki) -> (u16, PathBuf, [Child; 2]) {
+    let port = free_port();
+    let cfg = remote_config(dir, port, &["ha", "hb"], pki);
+    let host = |n: &Netns, name: &str| {
+        let learner = format!("tls/{}:{port}", n.learner_ip);
+        actor_host(Some(n), &learner, name, pki, "client")
+    };
+    (port, cfg, [host(ns[0], "ha"), host(ns[1], "hb")])
+}
+
 fn train_args<'a>(out: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
     let mut args = vec!["train", "--seed", "3", "--out", out.to_str().unwrap()];
     args.extend_from_slice(SMOKE);
@@ -215,24 +227,7 @@ fn hosts_in_other_namespaces_train_like_local_actors_survive_a_cut_and_refuse_st
     assert!(o.status.success(), "local run: {}", text(&o));
 
     // One local actor, one on each host.
-    let port = free_port();
-    let cfg = remote_config(tmp.path(), port, &["ha", "hb"], &pki);
-    let hosts = [
-        actor_host(
-            Some(&a),
-            &format!("tls/{}:{port}", a.learner_ip),
-            "ha",
-            &pki,
-            "client",
-        ),
-        actor_host(
-            Some(&b),
-            &format!("tls/{}:{port}", b.learner_ip),
-            "hb",
-            &pki,
-            "client",
-        ),
-    ];
+    let (_, cfg, hosts) = two_hosts(tmp.path(), [&a, &b], &pki);
     let remote = tmp.path().join("remote");
     let o = ess(&train_args(
         &remote,
@@ -245,7 +240,12 @@ fn hosts_in_other_namespaces_train_like_local_actors_survive_a_cut_and_refuse_st
         text(&o)
     );
     for (code, log) in &logs {
-        assert_eq!(*code, Some(0), "a host ends with the run: {log}");
+        assert_eq!(
+            *code,
+            Some(0),
+            "a host ends with the run: {log}\nlearner: {}",
+            text(&o)
+        );
     }
     for key in ["nmi", "ent", "normalized_reward", "env_steps"] {
         assert_eq!(
@@ -261,24 +261,7 @@ fn hosts_in_other_namespaces_train_like_local_actors_survive_a_cut_and_refuse_st
     );
 
     // A cut mid-run, and a stranger.
-    let port = free_port();
-    let cfg = remote_config(tmp.path(), port, &["ha", "hb"], &pki);
-    let hosts = [
-        actor_host(
-            Some(&a),
-            &format!("tls/{}:{port}", a.learner_ip),
-            "ha",
-            &pki,
-            "client",
-        ),
-        actor_host(
-            Some(&b),
-            &format!("tls/{}:{port}", b.learner_ip),
-            "hb",
-            &pki,
-            "client",
-        ),
-    ];
+    let (port, cfg, hosts) = two_hosts(tmp.path(), [&a, &b], &pki);
     let cut = tmp.path().join("cut");
     let mut args = train_args(&cut, &["--actors", "1", "--config", cfg.to_str().unwrap()]);
     // Long enough (~10 ms an iteration) that the cut and a late join fall well inside

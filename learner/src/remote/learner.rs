@@ -23,6 +23,10 @@ use zenoh::sample::{Sample, SampleKind};
 /// Longest a host may take to start its actors or answer one rollout. A lost host is
 /// noticed sooner, by its token (`remote.timeout_s`).
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(600);
+/// How long a joining host's request queryable may take to become reachable.
+const JOIN_GRACE: Duration = Duration::from_secs(5);
+/// How long the end of a run keeps asking a host to stop.
+const STOP_GRACE: Duration = Duration::from_secs(3);
 /// How often a wait for answers looks at the hosts' tokens.
 const POLL: Duration = Duration::from_millis(100);
 
@@ -156,7 +160,7 @@ impl RemoteActors {
                 .collect(),
             ..self.setup.template.clone()
         };
-        match self.ask_once(name, &Rpc::Assign(asg)) {
+        match self.ask_once(name, &Rpc::Assign(asg), ANSWER_TIMEOUT, JOIN_GRACE) {
             Ok(()) => {
                 tracing::info!(host = %name, first, actors = n, "actor host joined");
                 self.next_actor += n;
@@ -170,14 +174,29 @@ impl RemoteActors {
         }
     }
 
-    /// Sends `rpc` to `host` and waits for its one answer.
-    fn ask_once(&self, host: &str, rpc: &Rpc) -> Result<(), RemoteError> {
+    /// Sends `rpc` to `host` and waits for its one answer. A query that reaches no
+    /// queryable ends at once without an answer: a host's token can arrive before its
+    /// queryable's declaration has been routed (seen in a fresh-clone run), so that is
+    /// retried for `grace`; an answer may take `timeout`.
+    fn ask_once(
+        &self,
+        host: &str,
+        rpc: &Rpc,
+        timeout: Duration,
+        grace: Duration,
+    ) -> Result<(), RemoteError> {
         let bad = |why: String| RemoteError::Host {
             host: host.to_owned(),
             why,
         };
-        let rx = self.query(host, rpc, ANSWER_TIMEOUT)?;
-        let reply = rx.recv().map_err(|_| bad("no answer".into()))?;
+        let deadline = Instant::now() + grace;
+        let reply = loop {
+            match self.query(host, rpc, timeout)?.recv() {
+                Ok(r) => break r,
+                Err(_) if Instant::now() < deadline => std::thread::sleep(POLL),
+                Err(_) => return Err(bad("no answer".into())),
+            }
+        };
         match reply.result() {
             Ok(_) => Ok(()),
             Err(e) => Err(bad(
@@ -387,8 +406,8 @@ impl Drop for RemoteActors {
     /// Ends the run on every host (they stop their actors and exit).
     fn drop(&mut self) {
         for h in &self.hosts {
-            if let Ok(rx) = self.query(&h.name, &Rpc::Stop, Duration::from_secs(3)) {
-                let _ = rx.recv();
+            if let Err(e) = self.ask_once(&h.name, &Rpc::Stop, STOP_GRACE, STOP_GRACE) {
+                tracing::warn!(host = %h.name, error = %e, "the host did not confirm STOP");
             }
         }
     }
