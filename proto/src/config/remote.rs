@@ -2,7 +2,8 @@
 //! (`ess actor-host`, `ess_learner::remote`). Empty `listen` (the default): this
 //! machine's actors only, nothing listens.
 
-use super::{ConfigError, range};
+use super::ConfigError;
+use super::check::range;
 use serde::{Deserialize, Serialize};
 
 /// Where remote actor hosts reach the learner, which of them it waits for, and the
