@@ -5,7 +5,7 @@ use super::{ctrl_c_flag, input_err};
 use anyhow::Result;
 use clap::Args;
 use ess_learner::remote::{HostArgs, RemoteError, run_host};
-use ess_proto::config::valid_host_name;
+use ess_proto::config::{is_tls_endpoint, valid_host_name};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -64,7 +64,7 @@ pub fn actor_host(a: ActorHostArgs) -> Result<()> {
     if !(1..=256).contains(&actors) {
         return Err(input_err(format!("--actors {actors}: must be in 1..=256")));
     }
-    if !a.learner.starts_with("tls/") {
+    if !is_tls_endpoint(&a.learner) {
         return Err(input_err(format!(
             "--learner `{}`: must be a zenoh TLS endpoint, tls/ADDR:PORT",
             ess_proto::text::printable(&a.learner)

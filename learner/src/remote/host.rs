@@ -7,8 +7,8 @@
 use super::wire::{Assign, HOST_TOKENS, LEARNER_TOKEN, Rpc, encode_chunk, host_token, rpc_key};
 use super::{RemoteError, Side, TlsFiles, session_config, zerr};
 use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
+use ess_actor::RolloutSource;
 use ess_actor::shm::policy_from_msg;
-use ess_actor::{LatentSpec, RolloutSource};
 use ess_proto::shm::ShmChunkHeader;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -194,12 +194,7 @@ fn start_actors(a: &HostArgs, asg: &Assign) -> Result<ShmActors, String> {
         binary: actor_binary().map_err(|e| e.to_string())?,
         env: asg.env.clone(),
         n_modes: asg.n_modes,
-        latent: LatentSpec {
-            prior: asg.prior,
-            n_codes: asg.n_codes,
-            tau: asg.tau,
-            use_eps: asg.use_eps,
-        },
+        latent: asg.latent(),
         seeds: asg.seeds.clone(),
         max_steps: asg.max_steps,
         heartbeat_timeout: Duration::from_secs_f64(asg.actor_timeout_s),

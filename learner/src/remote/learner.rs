@@ -7,7 +7,7 @@ use super::wire::{
 use super::{LEARNER_FIELDS, RemoteError, Side, learner_tls, session_config, zerr};
 use crate::train::actor_seed;
 use ess_actor::shm::weights_msg;
-use ess_actor::{ActorError, EvalRunner, LatentSpec, PolicyWeights, RolloutSource, split_steps};
+use ess_actor::{ActorError, EvalRunner, PolicyWeights, RolloutSource, split_steps};
 use ess_proto::Chunk;
 use ess_proto::config::RemoteConfig;
 use ess_proto::shm::run_id_hash;
@@ -56,7 +56,6 @@ pub struct RemoteActors {
     /// Global index the next joining host's first actor gets.
     next_actor: usize,
     setup: RemoteSetup,
-    latent: LatentSpec,
     request_id: u64,
     /// Token events seen while waiting for answers, handled at the next rollout.
     backlog: Vec<Sample>,
@@ -92,19 +91,11 @@ impl RemoteActors {
             .declare_token(LEARNER_TOKEN)
             .wait()
             .map_err(zerr("declaring the learner's token"))?;
-        let t = &setup.template;
-        let latent = LatentSpec {
-            prior: t.prior,
-            n_codes: t.n_codes,
-            tau: t.tau,
-            use_eps: t.use_eps,
-        };
         let mut me = Self {
             next_actor: local.n_actors(),
             local,
             hosts: Vec::new(),
             setup,
-            latent,
             request_id: 0,
             backlog: Vec::new(),
             joins,
@@ -265,6 +256,7 @@ impl RemoteActors {
         w: &PolicyWeights,
     ) -> Result<Vec<Chunk>, String> {
         let mut slots: Vec<Option<Chunk>> = vec![None; split.len()];
+        let run_hash = run_id_hash(&self.setup.template.run);
         loop {
             let reply = match rx.recv_timeout(POLL) {
                 Ok(Some(r)) => r,
@@ -281,12 +273,12 @@ impl RemoteActors {
                 decode_chunk(&sample.payload().to_bytes()).map_err(|e| e.to_string())?;
             let j = (h.actor as usize).wrapping_sub(first);
             let fits = j < split.len()
-                && h.run_id_hash == run_id_hash(&self.setup.template.run)
+                && h.run_id_hash == run_hash
                 && h.request_id == self.request_id
                 && h.policy_version == w.version
                 && h.len as usize == split[j]
                 && chunk.obs_dim == w.obs_mean.len()
-                && chunk.n_codes == self.latent.n_codes;
+                && chunk.n_codes == self.setup.template.n_codes;
             if !fits || slots[j].is_some() {
                 return Err(format!(
                     "a chunk that does not answer this rollout (actor {})",
@@ -344,7 +336,11 @@ impl RolloutSource for RemoteActors {
         let n_local = self.local.n_actors();
         let split = split_steps(steps, self.n_actors());
         self.request_id += 1;
-        let msg = weights_msg(&weights, &self.latent, &self.setup.template.run);
+        let msg = weights_msg(
+            &weights,
+            &self.setup.template.latent(),
+            &self.setup.template.run,
+        );
         let mut asked = Vec::new();
         let mut at = n_local;
         for h in &self.hosts {

@@ -4,6 +4,7 @@
 //! read), so a remote chunk is read by the same code as a local one; the assignment is
 //! JSON (once per host and run).
 
+use ess_actor::LatentSpec;
 use ess_proto::Chunk;
 use ess_proto::config::LatentPrior;
 use ess_proto::shm::{
@@ -61,6 +62,18 @@ pub struct Assign {
     pub max_steps: usize,
     /// An actor silent this long is restarted by its host.
     pub actor_timeout_s: f64,
+}
+
+impl Assign {
+    /// The latent spec the host's actors sample (c, eps) with.
+    pub fn latent(&self) -> LatentSpec {
+        LatentSpec {
+            prior: self.prior,
+            n_codes: self.n_codes,
+            tau: self.tau,
+            use_eps: self.use_eps,
+        }
+    }
 }
 
 /// A request to a host.

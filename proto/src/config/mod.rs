@@ -12,7 +12,7 @@ mod layers;
 mod remote;
 
 pub use layers::{ConfigBuilder, EnvLayer};
-pub use remote::{RemoteConfig, valid_host_name};
+pub use remote::{RemoteConfig, is_tls_endpoint, valid_host_name};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 

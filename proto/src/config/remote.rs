@@ -54,6 +54,15 @@ pub fn valid_host_name(name: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_' || b == b'.')
 }
 
+/// A zenoh mutual-TLS endpoint, `tls/ADDR:PORT`: what `remote.listen` and `ess
+/// actor-host --learner` accept (the only transport a remote host may use).
+pub fn is_tls_endpoint(endpoint: &str) -> bool {
+    endpoint
+        .strip_prefix("tls/")
+        .and_then(|a| a.rsplit_once(':'))
+        .is_some_and(|(addr, port)| !addr.is_empty() && port.parse::<u16>().is_ok())
+}
+
 impl RemoteConfig {
     /// Whether remote hosts are part of the run.
     pub fn enabled(&self) -> bool {
@@ -96,9 +105,7 @@ impl RemoteConfig {
             );
         }
         range(
-            self.listen
-                .strip_prefix("tls/")
-                .is_some_and(|a| a.rsplit_once(':').is_some()),
+            is_tls_endpoint(&self.listen),
             "remote.listen",
             crate::text::printable(&self.listen),
             "must be a zenoh TLS endpoint, tls/ADDR:PORT",
@@ -143,6 +150,23 @@ mod tests {
         assert!(!RemoteConfig::default().enabled());
         RemoteConfig::default().check().unwrap();
         on().check().unwrap();
+    }
+
+    #[test]
+    fn tls_endpoints_need_an_address_and_a_port() {
+        for ok in ["tls/0.0.0.0:7447", "tls/[::1]:7447", "tls/learner.lab:1"] {
+            assert!(is_tls_endpoint(ok), "{ok}");
+        }
+        for bad in [
+            "tcp/0.0.0.0:7447",
+            "tls/0.0.0.0",
+            "tls/:7447",
+            "tls/a:port",
+            "tls/a:70000",
+            "",
+        ] {
+            assert!(!is_tls_endpoint(bad), "{bad}");
+        }
     }
 
     #[test]
