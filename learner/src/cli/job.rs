@@ -3,6 +3,8 @@
 use super::{ConfigArgs, input_err};
 use anyhow::Result;
 use clap::{Args, Subcommand};
+use ess_learner::control::client;
+use ess_proto::pb;
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -79,7 +81,7 @@ pub fn status_err(s: tonic::Status) -> anyhow::Error {
     let mut msg = format!("{:?}: {}", s.code(), s.message());
     // A transport failure's reason (a refused client certificate, say) is in its causes.
     if let Some(cause) = std::error::Error::source(&s) {
-        let chain = ess_learner::control::client::error_chain(cause);
+        let chain = client::error_chain(cause);
         if chain.starts_with(s.message()) {
             msg = format!("{:?}: {chain}", s.code());
         } else if !msg.contains(&chain) {
@@ -141,9 +143,8 @@ fn client_tls(a: &JobArgs, server: &str) -> Result<Option<tonic::transport::Clie
         .map_err(input_err)
 }
 
-pub async fn job(a: JobArgs) -> Result<()> {
-    use ess_learner::control::client::{self, event_json, job_detail, job_json, job_line};
-    use ess_proto::pb;
+/// The server URL and bearer token the flags (or their environment variables) name.
+fn server_and_token(a: &JobArgs) -> Result<(String, Option<String>)> {
     let server = a
         .server
         .clone()
@@ -158,14 +159,33 @@ pub async fn job(a: JobArgs) -> Result<()> {
         .map(client::read_token_file)
         .transpose()
         .map_err(input_err)?;
-    let json = a.json;
-    let print_job = |j: &pb::Job| {
-        if json {
-            println!("{}", job_json(j));
-        } else {
-            print!("{}", job_detail(j));
+    Ok((server, token))
+}
+
+fn print_job(j: &pb::Job, json: bool) {
+    if json {
+        println!("{}", client::job_json(j));
+    } else {
+        print!("{}", client::job_detail(j));
+    }
+}
+
+fn print_jobs(jobs: &[pb::Job], json: bool) {
+    if json {
+        let all = jobs.iter().map(client::job_json).collect();
+        println!("{}", serde_json::Value::Array(all));
+    } else if jobs.is_empty() {
+        println!("no jobs");
+    } else {
+        for j in jobs {
+            println!("{}", client::job_line(j));
         }
-    };
+    }
+}
+
+pub async fn job(a: JobArgs) -> Result<()> {
+    let (server, token) = server_and_token(&a)?;
+    let json = a.json;
     // Validate local input before connecting.
     let spec = match &a.cmd {
         JobCmd::Submit { config, .. } => Some(job_spec(config)?),
@@ -181,7 +201,7 @@ pub async fn job(a: JobArgs) -> Result<()> {
                 .map_err(status_err)?
                 .into_inner();
             if !watch || !json {
-                print_job(&j);
+                print_job(&j, json);
             }
             watch.then_some(j.id)
         }
@@ -196,36 +216,17 @@ pub async fn job(a: JobArgs) -> Result<()> {
                 .map_err(status_err)?
                 .into_inner()
                 .jobs;
-            if json {
-                println!(
-                    "{}",
-                    serde_json::Value::Array(jobs.iter().map(job_json).collect())
-                );
-            } else if jobs.is_empty() {
-                println!("no jobs");
-            } else {
-                for j in &jobs {
-                    println!("{}", job_line(j));
-                }
-            }
+            print_jobs(&jobs, json);
             None
         }
         JobCmd::Get { id } => {
-            let j = c
-                .get_job(pb::GetJobRequest { id })
-                .await
-                .map_err(status_err)?
-                .into_inner();
-            print_job(&j);
+            let j = c.get_job(pb::GetJobRequest { id }).await;
+            print_job(&j.map_err(status_err)?.into_inner(), json);
             None
         }
         JobCmd::Stop { id } => {
-            let j = c
-                .stop_job(pb::StopJobRequest { id })
-                .await
-                .map_err(status_err)?
-                .into_inner();
-            print_job(&j);
+            let j = c.stop_job(pb::StopJobRequest { id }).await;
+            print_job(&j.map_err(status_err)?.into_inner(), json);
             None
         }
         JobCmd::Resume { id, watch } => {
@@ -235,15 +236,21 @@ pub async fn job(a: JobArgs) -> Result<()> {
                 .map_err(status_err)?
                 .into_inner();
             if !watch || !json {
-                print_job(&j);
+                print_job(&j, json);
             }
             watch.then_some(j.id)
         }
         JobCmd::Watch { id } => Some(id),
     };
-    let Some(id) = watch_id else {
-        return Ok(());
-    };
+    match watch_id {
+        Some(id) => watch(&mut c, id, json).await,
+        None => Ok(()),
+    }
+}
+
+/// Follows job `id` to its end: a line per iteration and per state change (or the
+/// events as JSON); the exit status is the job's (failed: an error).
+async fn watch(c: &mut client::Client, id: String, json: bool) -> Result<()> {
     let mut stream = c
         .watch_job(pb::WatchJobRequest { id: id.clone() })
         .await
@@ -252,7 +259,7 @@ pub async fn job(a: JobArgs) -> Result<()> {
     let mut last: Option<pb::Job> = None;
     while let Some(ev) = stream.message().await.map_err(status_err)? {
         if json {
-            println!("{}", event_json(&ev));
+            println!("{}", client::event_json(&ev));
         } else if let Some(m) = &ev.metrics {
             let total = ev.job.as_ref().map_or(0, |j| j.iterations);
             println!("{}", client::iteration_line(m, total));
@@ -277,7 +284,7 @@ pub async fn job(a: JobArgs) -> Result<()> {
         anyhow::bail!("the server ended the watch of {id} without an event");
     };
     if !json {
-        print!("{}", job_detail(&j));
+        print!("{}", client::job_detail(&j));
     }
     match pb::JobState::try_from(j.state) {
         Ok(pb::JobState::Failed) => Err(anyhow::anyhow!("job {} failed: {}", j.id, j.error)),
@@ -291,8 +298,7 @@ pub async fn job(a: JobArgs) -> Result<()> {
 }
 
 /// The job spec the config flags describe (the config file's contents travel).
-pub fn job_spec(c: &ConfigArgs) -> Result<ess_proto::pb::JobSpec> {
-    use ess_proto::pb;
+pub fn job_spec(c: &ConfigArgs) -> Result<pb::JobSpec> {
     if c.preset.ends_with(".toml") || c.preset.contains('/') {
         return Err(input_err(format!(
             "--preset {}: a job takes a preset name (`ess presets`); pass a file with --config",
