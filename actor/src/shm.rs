@@ -462,6 +462,103 @@ fn parent_gone(parent: Option<u32>) -> bool {
     parent.is_some_and(|p| std::os::unix::process::parent_id() != p)
 }
 
+impl ActorPorts {
+    /// This actor's ports on the run's services; `max_words` sizes the chunk publisher
+    /// for the largest request.
+    fn open(
+        svc: &Services,
+        settings: &ActorSettings,
+        max_words: usize,
+    ) -> Result<Self, ShmTransportError> {
+        Ok(ActorPorts {
+            weights: svc
+                .weights
+                .subscriber_builder()
+                .create()
+                .map_err(ipc("subscriber", "weights"))?,
+            requests: svc
+                .requests
+                .subscriber_builder()
+                .create()
+                .map_err(ipc("subscriber", "requests"))?,
+            chunks: svc
+                .chunks
+                .publisher_builder()
+                .initial_max_slice_len(max_words)
+                .allocation_strategy(AllocationStrategy::PowerOfTwo)
+                .max_loaned_samples(1)
+                .create()
+                .map_err(ipc("publisher", "chunks"))?,
+            status: svc
+                .status
+                .publisher_builder()
+                .create()
+                .map_err(ipc("publisher", "status"))?,
+            wake_learner: svc
+                .wake_learner
+                .notifier_builder()
+                .create()
+                .map_err(ipc("notifier", "wake-learner"))?,
+            wake_me: svc
+                .wake_actors
+                .listener_builder()
+                .create()
+                .map_err(ipc("listener", "wake-actors"))?,
+            index: settings.index as u32,
+            pid: std::process::id(),
+            last_beat: Instant::now(),
+            last_done: 0,
+            weights_version: 0,
+            steps: 0,
+            run_id: settings.run_id.clone(),
+        })
+    }
+
+    /// The policy of the newest weights message of this run, when it is new.
+    fn newest_policy(
+        &mut self,
+        hash: u64,
+    ) -> Result<Option<(PolicyWeights, LatentSpec)>, ShmTransportError> {
+        let mut newest = None;
+        while let Some(s) = self.weights.receive().map_err(ipc("receive", "weights"))? {
+            let m = read_weights(bytemuck::cast_slice(s.payload()))?;
+            if m.run_id_hash == hash && m.version != self.weights_version {
+                self.weights_version = m.version;
+                newest = Some(policy_from_msg(m)?);
+            }
+        }
+        Ok(newest)
+    }
+
+    /// Reads the waiting requests: a snapshot is answered at once, the newest collect
+    /// or evaluate request for this actor goes to `pending`; true on a stop request.
+    fn take_requests(
+        &mut self,
+        worker: &mut Worker,
+        hash: u64,
+        pending: &mut Option<Request>,
+    ) -> Result<bool, ShmTransportError> {
+        while let Some(r) = self
+            .requests
+            .receive()
+            .map_err(ipc("receive", "requests"))?
+        {
+            let r = *r.payload();
+            if r.kind == Request::STOP {
+                return Ok(true);
+            }
+            if r.actor == self.index && r.request_id > self.last_done {
+                if r.kind == Request::SNAPSHOT {
+                    publish_state(self, worker, &r, hash)?;
+                } else {
+                    *pending = Some(r);
+                }
+            }
+        }
+        Ok(false)
+    }
+}
+
 /// The actor process's loop: wait for weights and requests, collect, publish, repeat,
 /// until a stop request or the parent's death. `worker` acts; its episode carries over
 /// from one request to the next exactly as on the threaded path.
@@ -483,48 +580,7 @@ pub fn run_actor(
     )
     .words()
     .max(16);
-    let mut ports = ActorPorts {
-        weights: svc
-            .weights
-            .subscriber_builder()
-            .create()
-            .map_err(ipc("subscriber", "weights"))?,
-        requests: svc
-            .requests
-            .subscriber_builder()
-            .create()
-            .map_err(ipc("subscriber", "requests"))?,
-        chunks: svc
-            .chunks
-            .publisher_builder()
-            .initial_max_slice_len(max_words)
-            .allocation_strategy(AllocationStrategy::PowerOfTwo)
-            .max_loaned_samples(1)
-            .create()
-            .map_err(ipc("publisher", "chunks"))?,
-        status: svc
-            .status
-            .publisher_builder()
-            .create()
-            .map_err(ipc("publisher", "status"))?,
-        wake_learner: svc
-            .wake_learner
-            .notifier_builder()
-            .create()
-            .map_err(ipc("notifier", "wake-learner"))?,
-        wake_me: svc
-            .wake_actors
-            .listener_builder()
-            .create()
-            .map_err(ipc("listener", "wake-actors"))?,
-        index: settings.index as u32,
-        pid: std::process::id(),
-        last_beat: Instant::now(),
-        last_done: 0,
-        weights_version: 0,
-        steps: 0,
-        run_id: run.to_owned(),
-    };
+    let mut ports = ActorPorts::open(&svc, settings, max_words)?;
     let hash = run_id_hash(run);
     let mut policy: Option<(PolicyWeights, LatentSpec)> = None;
     let mut pending: Option<Request> = None;
@@ -535,33 +591,12 @@ pub fn run_actor(
             tracing::warn!(actor = settings.index, "learner is gone; exiting");
             return Ok(());
         }
-        while let Some(s) = ports.weights.receive().map_err(ipc("receive", "weights"))? {
-            let m = read_weights(bytemuck::cast_slice(s.payload()))?;
-            if m.run_id_hash != hash {
-                continue;
-            }
-            if m.version != ports.weights_version {
-                ports.weights_version = m.version;
-                policy = Some(policy_from_msg(m)?);
-            }
+        if let Some(p) = ports.newest_policy(hash)? {
+            policy = Some(p);
         }
-        while let Some(r) = ports
-            .requests
-            .receive()
-            .map_err(ipc("receive", "requests"))?
-        {
-            let r = *r.payload();
-            if r.kind == Request::STOP {
-                tracing::debug!(actor = settings.index, "stop requested");
-                return Ok(());
-            }
-            if r.actor == ports.index && r.request_id > ports.last_done {
-                if r.kind == Request::SNAPSHOT {
-                    publish_state(&mut ports, worker, &r, hash)?;
-                } else {
-                    pending = Some(r);
-                }
-            }
+        if ports.take_requests(worker, hash, &mut pending)? {
+            tracing::debug!(actor = settings.index, "stop requested");
+            return Ok(());
         }
         let ready = match (&pending, &policy) {
             (Some(r), Some((w, _))) => {
