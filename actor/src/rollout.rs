@@ -150,7 +150,8 @@ impl Worker {
     }
 
     /// Records the task reward of `mode` ([`Env::task_rewards`]) as each step's
-    /// `env_reward` (expert training); without it `env_reward` is 0. A mode out of range
+    /// `env_reward` (expert training); without it `env_reward` is the env's mode-agnostic
+    /// [`Env::shared_reward`] (imitation, `method.reward_shared`). A mode out of range
     /// is [`EnvError::ModeOutOfRange`].
     pub fn with_task_reward(mut self, mode: usize) -> Result<Self, ActorError> {
         let n_modes = self.env.spec().n_modes;
@@ -275,7 +276,7 @@ impl Worker {
                     self.env.task_rewards(&mut self.task_rewards);
                     self.task_rewards[k]
                 }
-                None => 0.0,
+                None => self.env.shared_reward(),
             };
             sink.push(&Step {
                 obs: &self.obs,

@@ -188,6 +188,16 @@ pub trait Env: Send {
         self.mode_rewards(out);
     }
 
+    /// Mode-agnostic reward of the last transition, the same whatever the mode (the
+    /// paper's code calls it `reward_train` and adds it to the imitation reward scaled
+    /// by `reward_t_coef`, 0.005). It says nothing about which mode runs: for the
+    /// locomotion envs it rewards moving in either direction and staying upright
+    /// ([`crate::locomotion`]). The imitation objective adds it with
+    /// `method.reward_shared` (0 by default). The default is 0.
+    fn shared_reward(&self) -> f32 {
+        0.0
+    }
+
     /// Whether [`Env::mode_rewards`] scores the modes (every built-in env does; a task
     /// file only with `[[modes]]`). Without it normalized reward does not apply.
     fn has_mode_rewards(&self) -> bool {

@@ -484,6 +484,10 @@ impl Env for ExpertEnv {
         self.env.task_rewards(out)
     }
 
+    fn shared_reward(&self) -> f32 {
+        self.env.shared_reward()
+    }
+
     fn forward_velocity(&self) -> Option<f64> {
         self.env.forward_velocity()
     }

@@ -478,6 +478,10 @@ impl Env for Humanoid {
         self.terms.write_rewards(&self.task_weights, out);
     }
 
+    fn shared_reward(&self) -> f32 {
+        self.terms.shared(&self.weights) as f32
+    }
+
     fn forward_velocity(&self) -> Option<f64> {
         Some(self.terms.x_velocity)
     }

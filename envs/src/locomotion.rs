@@ -23,6 +23,12 @@
 //! it, and `-|vx|` summed over an episode is the distance wandered, so it also
 //! penalises drift.
 //!
+//! The shared reward ([`Env::shared_reward`](crate::Env::shared_reward)) is the paper
+//! code's mode-agnostic `reward_train`: `0.6 * forward_weight * |vx| + 0.3 * alive`
+//! with `alive` 1 on a healthy step and -100 on the step that falls (the reference
+//! scales Humanoid's healthy reward of 5 by 0.2, so `alive` is 1 on both envs). It
+//! rewards moving in either direction and punishes falling; it never names a mode.
+//!
 //! Note that `r_2 <= min(r_0, r_1)` always (with equality to `r_1` when moving
 //! forward and to `r_0` when moving backward): the balance reward is only comparable
 //! between policies, not between modes.
@@ -34,6 +40,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::env::{EnvError, StateReader, StateWriter, check_action, check_can_step, check_obs_len};
 use crate::mujoco::{self, model_error};
+
+/// The shared reward's `alive` term on the step that falls (the paper's code: -100).
+const FALL_PENALTY: f64 = -100.0;
 
 /// Number of behaviour modes of every locomotion env.
 pub const N_MODES: usize = 3;
@@ -116,6 +125,12 @@ impl RewardTerms {
         healthy + w.forward_weight * mode.velocity(self.x_velocity)
             - self.ctrl_cost
             - self.contact_cost
+    }
+
+    /// The mode-agnostic shared reward of this transition (see the module docs).
+    pub fn shared(&self, w: &RewardWeights) -> f64 {
+        let alive = if self.healthy { 1.0 } else { FALL_PENALTY };
+        0.6 * w.forward_weight * self.x_velocity.abs() + 0.3 * alive
     }
 
     /// Number of values [`RewardTerms::save`] writes.
@@ -530,6 +545,21 @@ mod tests {
         healthy_reward: 1.0,
         forward_weight: 2.0,
     };
+
+    #[test]
+    fn the_shared_reward_is_blind_to_direction_and_punishes_the_fall() {
+        let t = |healthy, x_velocity| RewardTerms {
+            healthy,
+            x_velocity,
+            ctrl_cost: 0.5,
+            contact_cost: 0.0,
+        };
+        // 0.6 * forward_weight (2) * |vx| + 0.3; no control cost.
+        assert!((t(true, 1.5).shared(&W) - 2.1).abs() < 1e-12);
+        assert_eq!(t(true, 1.5).shared(&W), t(true, -1.5).shared(&W));
+        assert!((t(true, 0.0).shared(&W) - 0.3).abs() < 1e-12);
+        assert!((t(false, 0.0).shared(&W) + 30.0).abs() < 1e-12);
+    }
 
     #[test]
     fn modes_round_trip_through_their_index() {

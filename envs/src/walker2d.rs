@@ -299,6 +299,10 @@ impl Env for Walker2d {
         self.terms.write_rewards(&self.weights, out);
     }
 
+    fn shared_reward(&self) -> f32 {
+        self.terms.shared(&self.weights) as f32
+    }
+
     fn forward_velocity(&self) -> Option<f64> {
         Some(self.terms.x_velocity)
     }
@@ -453,6 +457,9 @@ mod tests {
             // Healthy reward 1, no control cost.
             let want = 1.0 + v.abs();
             assert!((f64::from(r[best]) - want).abs() < 1e-4, "{r:?} vs {want}");
+            // The shared reward pays speed either way: 0.6 |vx| + 0.3 upright.
+            let shared = f64::from(env.shared_reward());
+            assert!((shared - (0.6 * v.abs() + 0.3)).abs() < 1e-4, "{shared}");
         }
     }
 
@@ -521,6 +528,14 @@ mod tests {
         env.set_state(&qpos, &qvel).expect("state");
         let out = env.step(&[0.0; 6], &mut obs).expect("step");
         assert!(out.terminated && !out.truncated);
+        // The fall costs the shared reward 0.3 * 100; mode rewards only lose the
+        // healthy reward.
+        let shared = f64::from(env.shared_reward());
+        let want = 0.6 * env.x_velocity().abs() - 30.0;
+        assert!((shared - want).abs() < 1e-4, "{shared} vs {want}");
+        let mut r = [0.0f32; 3];
+        env.mode_rewards(&mut r);
+        assert!(r.iter().all(|&x| x > -10.0), "{r:?}");
     }
 
     #[test]

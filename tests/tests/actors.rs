@@ -189,6 +189,30 @@ fn a_dead_or_hung_actor_during_evaluation_is_replaced_and_its_job_run_again() {
 }
 
 #[test]
+fn imitation_chunks_carry_the_shared_reward_and_a_fall_costs_it() {
+    // Walker2d: 17 observations, 6 actions, 3 modes; random-ish weights fall often.
+    let workers = vec![Worker::new(
+        ess_envs::make_env("walker2d", 3).unwrap(),
+        5,
+        3,
+    )];
+    let mut threads = ThreadedActors::new(workers, latent_k(3));
+    let c = threads.collect(weights_for(17, 6, 3, 1, 0.0), 400).unwrap();
+    let (mut falls, mut upright) = (0, 0);
+    for (r, &fell) in c[0].env_reward.iter().zip(&c[0].terminated) {
+        // 0.6 |vx| + 0.3 upright, 0.6 |vx| - 30 on the step that falls.
+        if fell {
+            falls += 1;
+            assert!(*r < -25.0, "fall {r}");
+        } else {
+            upright += 1;
+            assert!(*r >= 0.3 - 1e-5, "upright {r}");
+        }
+    }
+    assert!(falls > 0 && upright > 0, "falls {falls}, upright {upright}");
+}
+
+#[test]
 fn process_chunks_equal_thread_chunks_in_every_field() {
     let seeds = [11u64, 12];
     let mut procs = shm_actors(&seeds, 300);

@@ -214,10 +214,12 @@ impl Trainer<'_> {
         if m.prior == LatentPrior::Gumbel && m.prior_score_coef > 0.0 {
             ppo.prior_score_step(&r.code, &disc_r, m.prior_score_coef);
         }
+        // The env's mode-agnostic shared reward, weighted (0 by default).
+        let shared = m.reward_shared as f32;
         let reward: Vec<f32> = reward
             .iter()
             .zip(&r.all.env_reward)
-            .map(|(r, e)| r + e)
+            .map(|(r, e)| r + shared * e)
             .collect();
         log.reward_mean =
             reward.iter().map(|&r| r as f64).sum::<f64>() / reward.len().max(1) as f64;

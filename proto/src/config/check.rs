@@ -109,6 +109,7 @@ impl MethodConfig {
             ("method.reward_qc", m.reward_qc),
             ("method.reward_qeps", m.reward_qeps),
             ("method.reward_disc", m.reward_disc),
+            ("method.reward_shared", m.reward_shared),
             ("method.prior_score_coef", m.prior_score_coef),
         ] {
             finite_nonneg(k, v)?;

@@ -268,6 +268,11 @@ pub struct MethodConfig {
     pub reward_disc: f64,
     /// Form of the discriminator term.
     pub disc_reward: DiscReward,
+    /// Policy reward weight of the env's mode-agnostic shared reward (moving and staying
+    /// upright on Walker2d and Humanoid; `Env::shared_reward` in `ess-envs`). The
+    /// paper's code adds it to every method's reward with `reward_t_coef` 0.005; 0
+    /// leaves the reward pure imitation. It never tells the modes apart.
+    pub reward_shared: f64,
     /// Weight of a score-function (REINFORCE) gradient for the p(c) logits: each
     /// episode's code `k = argmax c` (Gumbel-max: `k ~ p(c)`) is reinforced by the
     /// discriminator reward its steps got, so p(c) moves toward the code frequencies
@@ -314,6 +319,7 @@ impl Default for MethodConfig {
             reward_qeps: 0.5,
             reward_disc: 1.0,
             disc_reward: DiscReward::Logit,
+            reward_shared: 0.0,
             prior_score_coef: 0.0,
             disc_code_reweight: false,
             rollout_codes: RolloutCodes::Prior,
