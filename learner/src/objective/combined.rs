@@ -108,6 +108,7 @@ impl RewardWeights {
             } else {
                 0.0
             },
+            qc_floor: m.qc_reward_floor,
             qeps: if m.use_eps { m.reward_qeps * info } else { 0.0 },
         }
     }

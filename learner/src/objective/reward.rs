@@ -23,6 +23,8 @@ pub struct RewardWeights {
     pub qc: f64,
     /// Constant added to `log Q_c` before weighting (`H(c)`, or 0).
     pub qc_offset: f64,
+    /// Clip `log Q_c + qc_offset` at 0 from below (`method.qc_reward_floor`).
+    pub qc_floor: bool,
     /// Latent shift term.
     pub qeps: f64,
 }
@@ -40,7 +42,9 @@ pub fn policy_reward(
     if w.qc != 0.0 {
         let lq =
             (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float);
-        r += (lq + w.qc_offset) * w.qc;
+        let lq = lq + w.qc_offset;
+        let lq = if w.qc_floor { lq.clamp_min(0.0) } else { lq };
+        r += lq * w.qc;
     }
     if w.qeps != 0.0 {
         r -= (qeps - eps).abs() * w.qeps;
@@ -69,6 +73,7 @@ mod tests {
             disc: 1.0,
             qc: 0.5,
             qc_offset: 0.0,
+            qc_floor: false,
             qeps: 2.0,
         };
         let d = Tensor::from_slice(&[0.0f32]);
@@ -90,6 +95,7 @@ mod tests {
             disc: 0.0,
             qc: 3.0,
             qc_offset: 4f64.ln(),
+            qc_floor: false,
             qeps: 0.0,
         };
         let d = Tensor::from_slice(&[5.0f32]);
@@ -98,5 +104,32 @@ mod tests {
         let e = Tensor::from_slice(&[0.0f32]);
         let r = f64::try_from(policy_reward(w, &d, &qc, &code, &e, &e).sum(Kind::Float)).unwrap();
         assert!(r.abs() < 1e-6, "{r}");
+    }
+
+    #[test]
+    fn the_floor_leaves_recognised_codes_and_zeroes_unrecognised_ones() {
+        // H(c) = ln 2; Q_c says 0.9 for the first row's code, 0.1 for the second's.
+        let mut w = RewardWeights {
+            disc_logit: true,
+            disc: 0.0,
+            qc: 1.0,
+            qc_offset: 2f64.ln(),
+            qc_floor: true,
+            qeps: 0.0,
+        };
+        let d = Tensor::from_slice(&[0.0f32, 0.0]);
+        let qc = t(&[0.9f32.ln(), 0.1f32.ln(), 0.9f32.ln(), 0.1f32.ln()], 2);
+        let code = t(&[1.0, 0.0, 0.0, 1.0], 2);
+        let e = Tensor::from_slice(&[0.0f32, 0.0]);
+        let r = |w| Vec::<f32>::try_from(policy_reward(w, &d, &qc, &code, &e, &e)).unwrap();
+        let recognised = 0.9f32.ln() + 2f32.ln();
+        assert!((r(w)[0] - recognised).abs() < 1e-5, "{:?}", r(w));
+        assert_eq!(r(w)[1], 0.0);
+        w.qc_floor = false;
+        assert!(
+            (r(w)[1] - (0.1f32.ln() + 2f32.ln())).abs() < 1e-5,
+            "{:?}",
+            r(w)
+        );
     }
 }

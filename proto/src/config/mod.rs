@@ -262,6 +262,11 @@ pub struct MethodConfig {
     /// where episodes terminate (Walker2d, Humanoid): an always-negative reward teaches
     /// the policy to fall early to stop collecting it.
     pub qc_reward_entropy: bool,
+    /// Clip each step's `log Q_c + H(c)` at 0 from below: a step Q_c does not credit
+    /// to its code earns nothing instead of a penalty. Where episodes end on a fall,
+    /// a code Q_c does not yet recognise otherwise learns that falling at once is
+    /// best (Walker2d: the forward code fell within ~6 steps, bench/experiments.md).
+    pub qc_reward_floor: bool,
     /// Policy reward weight of -|Q_eps(s, a) - eps| (lambda_1 in Eq. 3).
     pub reward_qeps: f64,
     /// Policy reward weight of the discriminator term.
@@ -316,6 +321,7 @@ impl Default for MethodConfig {
             info_reward_warmup_iters: 0,
             reward_qc: 4.0,
             qc_reward_entropy: false,
+            qc_reward_floor: false,
             reward_qeps: 0.5,
             reward_disc: 1.0,
             disc_reward: DiscReward::Logit,
