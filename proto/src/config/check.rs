@@ -128,6 +128,13 @@ impl MethodConfig {
             "a method without latent skill cannot reward or train Q_c on generated codes",
         )?;
         range(
+            !m.qc_reward_floor || m.qc_reward_entropy,
+            "method.qc_reward_floor",
+            "true",
+            "needs method.qc_reward_entropy = true (log Q_c alone is never above 0, so \
+             the floor would zero the term)",
+        )?;
+        range(
             m.rollout_codes == RolloutCodes::Prior || m.prior == LatentPrior::Gumbel,
             "method.rollout_codes",
             "\"uniform\"",

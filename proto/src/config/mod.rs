@@ -706,6 +706,27 @@ mod tests {
     }
 
     #[test]
+    fn the_q_c_reward_floor_needs_the_entropy_offset() {
+        let e = ConfigBuilder::new()
+            .set("method.qc_reward_floor=true")
+            .unwrap()
+            .build()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("method.qc_reward_floor") && e.contains("qc_reward_entropy"),
+            "{e}"
+        );
+        let ok = ConfigBuilder::new()
+            .set("method.qc_reward_floor=true")
+            .unwrap()
+            .set("method.qc_reward_entropy=true")
+            .unwrap()
+            .build();
+        assert!(ok.is_ok(), "{ok:?}");
+    }
+
+    #[test]
     fn negative_integer_for_unsigned_key_is_rejected_with_key() {
         let e = ConfigBuilder::new()
             .set("run.iterations=-3")
