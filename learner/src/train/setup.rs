@@ -1,6 +1,7 @@
 //! Building a [`Trainer`]: checks, demonstrations, networks, actors, and on `--resume`
 //! the latest checkpoint.
 
+use super::bc;
 use super::data::{Dims, ExpertData, ObsNorm, load_or_generate_demos};
 use super::records::{CSV_HEADER, truncate_metrics};
 use super::{LoopState, Progress, Trainer};
@@ -361,6 +362,41 @@ impl LoopState {
     }
 }
 
+/// The behaviour-cloning warm start of a fresh run (`ppo.bc_steps`, [`bc`]).
+fn clone_labeled(
+    cfg: &CheckedConfig,
+    nets: &mut Nets,
+    demos: &Demos,
+    norm: &ObsNorm,
+    d: Dims,
+    rng: &mut ChaCha8Rng,
+    progress: &mut dyn Progress,
+) {
+    let shape = (cfg.ppo.bc_steps, cfg.ppo.minibatch);
+    let (labeled, use_eps) = (&demos.labeled, cfg.method.use_eps);
+    if shape.0 > 0 && labeled.mode.is_empty() {
+        progress.message("behaviour cloning: the dataset has no labeled demonstrations; skipped");
+    }
+    if let Some(l) = bc::warm_start(
+        &mut nets.ppo,
+        labeled,
+        norm,
+        d.act,
+        d.codes,
+        use_eps,
+        shape,
+        rng,
+    ) {
+        progress.message(&format!(
+            "behaviour cloning: {} steps on {} labeled transitions, squared error {:.4} -> {:.4}",
+            shape.0,
+            labeled.mode.len(),
+            l.first,
+            l.last
+        ));
+    }
+}
+
 /// The run log and `metrics.csv`, created (a fresh run) or reopened after the
 /// checkpoint's iteration (a resumed one).
 fn open_logs(
@@ -459,7 +495,9 @@ impl<'c> Trainer<'c> {
             let ckpt = out.join("checkpoints");
             LoopState::restore(&ckpt, &mut nets, actors.as_mut(), dims.codes, progress)?
         } else {
-            (LoopState::fresh(cfg), None)
+            let mut st = LoopState::fresh(cfg);
+            clone_labeled(cfg, &mut nets, &demos, &norm, dims, &mut st.rng, progress);
+            (st, None)
         };
         let (runlog, csv) = open_logs(cfg, out, &st, resuming)?;
         Ok(Self {

@@ -77,3 +77,50 @@ fn resuming_a_directory_without_a_checkpoint_names_what_is_missing() {
         .expect("no checkpoint");
     assert!(format!("{e:#}").contains("no complete checkpoint"), "{e:#}");
 }
+
+/// Keeps the progress messages.
+#[derive(Default)]
+struct Messages(Vec<String>);
+impl Progress for Messages {
+    fn iteration(&mut self, _: &IterationLog) {}
+    fn message(&mut self, m: &str) {
+        self.0.push(m.to_owned());
+    }
+}
+
+#[test]
+fn a_fresh_run_clones_the_labeled_demonstrations_only_when_asked() {
+    let trainer_messages = |bc_steps: usize| {
+        let mut b = ConfigBuilder::new();
+        for kv in [
+            "run.transport=\"threads\"",
+            "run.actors=1",
+            "run.reference_episodes=2",
+            "demos.majority_episodes=4",
+            "ppo.minibatch=64",
+            &format!("ppo.bc_steps={bc_steps}"),
+        ] {
+            b.set(kv).expect(kv);
+        }
+        let cfg = b.build().expect("config");
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut p = Messages::default();
+        Trainer::new(&cfg, dir.path(), &mut p, false).expect("trainer");
+        p.0
+    };
+    let cloning = |m: &Vec<String>| {
+        m.iter()
+            .find(|m| m.starts_with("behaviour cloning"))
+            .cloned()
+    };
+    assert_eq!(cloning(&trainer_messages(0)), None);
+    let line = cloning(&trainer_messages(300)).expect("a cloning message");
+    let errors: Vec<f64> = line
+        .rsplit("squared error ")
+        .next()
+        .expect("errors")
+        .split(" -> ")
+        .map(|v| v.parse().expect(&line))
+        .collect();
+    assert!(errors[1] < 0.5 * errors[0], "{line}");
+}

@@ -366,6 +366,10 @@ pub struct PpoConfig {
     /// unit scale whatever the reward's scale (e.g. D logits of -20 on Reacher). Off by
     /// default (Traj2D's measured results); the MuJoCo env defaults turn it on.
     pub normalize_rewards: bool,
+    /// Behaviour-cloning warm start: minibatch steps (`minibatch` rows each) fitting
+    /// the policy's mean to the labeled demonstrations, each under its own code,
+    /// before the first iteration of a fresh run (0: off, the paper's setting).
+    pub bc_steps: usize,
 }
 
 impl Default for PpoConfig {
@@ -384,6 +388,7 @@ impl Default for PpoConfig {
             max_grad_norm: 0.5,
             log_std_init: -0.5,
             normalize_rewards: false,
+            bc_steps: 0,
         }
     }
 }
