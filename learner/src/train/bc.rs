@@ -10,7 +10,7 @@
 //! PPO optimiser, so PPO starts from the cloning's Adam moments (the value network gets
 //! no gradient and does not move).
 
-use crate::train::data::{ObsNorm, sample_idx};
+use crate::train::data::{Dims, ObsNorm, sample_idx};
 use crate::train::ppo::PpoLearner;
 use ess_envs::DemoSplit;
 use rand::Rng;
@@ -60,21 +60,18 @@ fn cloning_data(
 
 /// `steps` minibatch steps (`batch` rows each) of behaviour cloning on `labeled`.
 /// `None` when there is nothing to clone (no steps, or no labeled demonstrations).
-#[allow(clippy::too_many_arguments)]
 pub fn warm_start(
     ppo: &mut PpoLearner,
     labeled: &DemoSplit,
     norm: &ObsNorm,
-    act_dim: usize,
-    codes: usize,
-    use_eps: bool,
+    (d, use_eps): (Dims, bool),
     (steps, batch): (usize, usize),
     rng: &mut ChaCha8Rng,
 ) -> Option<BcLoss> {
     if steps == 0 || labeled.mode.is_empty() {
         return None;
     }
-    let (input, target) = cloning_data(labeled, norm, act_dim, codes, use_eps, rng);
+    let (input, target) = cloning_data(labeled, norm, d.act, d.codes, use_eps, rng);
     let n = input.size()[0];
     let mut losses = Vec::with_capacity(steps);
     for _ in 0..steps {
@@ -135,17 +132,14 @@ mod tests {
         )
         .expect("learner");
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let loss = warm_start(
-            &mut ppo,
-            &split,
-            &norm,
-            act_dim,
-            k,
-            true,
-            (400, 64),
-            &mut rng,
-        )
-        .expect("labeled data");
+        let d = Dims {
+            obs: obs_dim,
+            act: act_dim,
+            codes: k,
+            disc_cols: obs_dim,
+        };
+        let loss = warm_start(&mut ppo, &split, &norm, (d, true), (400, 64), &mut rng)
+            .expect("labeled data");
         assert!(loss.last < 0.01 * loss.first, "{loss:?}");
         for (code, want) in [([1.0f32, 0.0], 0.5f64), ([0.0, 1.0], -0.5)] {
             let x = Tensor::from_slice(&[0.3f32, 1.0, 0.7, code[0], code[1]]).view([1, -1]);
@@ -180,8 +174,14 @@ mod tests {
         };
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let empty = DemoSplit::default();
+        let d = Dims {
+            obs: 1,
+            act: 1,
+            codes: 2,
+            disc_cols: 1,
+        };
         assert_eq!(
-            warm_start(&mut ppo, &empty, &norm, 1, 2, true, (10, 8), &mut rng),
+            warm_start(&mut ppo, &empty, &norm, (d, true), (10, 8), &mut rng),
             None
         );
     }

@@ -12,8 +12,9 @@
 //!
 //! [`Trainer::new`] (`setup.rs`) builds a run's state from its configuration, or from
 //! its latest checkpoint on `--resume` (a fresh run first clones the labeled
-//! demonstrations into the policy when `ppo.bc_steps` asks, `bc.rs`); [`Trainer::train`] runs the iterations and
-//! [`Trainer::finish`] the final evaluation and `summary.json`. The weighted objective
+//! demonstrations into the policy when `ppo.bc_steps` asks, `bc.rs`);
+//! [`Trainer::train`] runs the iterations and [`Trainer::finish`] the final evaluation
+//! and `summary.json`. The weighted objective
 //! itself lives in [`crate::objective::combined`].
 
 pub(crate) mod bc;

@@ -377,16 +377,7 @@ fn clone_labeled(
     if shape.0 > 0 && labeled.mode.is_empty() {
         progress.message("behaviour cloning: the dataset has no labeled demonstrations; skipped");
     }
-    if let Some(l) = bc::warm_start(
-        &mut nets.ppo,
-        labeled,
-        norm,
-        d.act,
-        d.codes,
-        use_eps,
-        shape,
-        rng,
-    ) {
+    if let Some(l) = bc::warm_start(&mut nets.ppo, labeled, norm, (d, use_eps), shape, rng) {
         progress.message(&format!(
             "behaviour cloning: {} steps on {} labeled transitions, squared error {:.4} -> {:.4}",
             shape.0,
