@@ -73,22 +73,27 @@ pub fn warm_start(
     }
     let (input, target) = cloning_data(labeled, norm, d.act, d.codes, use_eps, rng);
     let n = input.size()[0];
-    let mut losses = Vec::with_capacity(steps);
-    for _ in 0..steps {
+    let mut loss = BcLoss {
+        first: f64::NAN,
+        last: f64::NAN,
+    };
+    for step in 0..steps {
         let idx = Tensor::from_slice(&sample_idx(rng, n, batch as i64));
         let mean = ppo.policy.mean.forward(&input.index_select(0, &idx));
-        let loss = (mean - target.index_select(0, &idx))
+        let mse = (mean - target.index_select(0, &idx))
             .square()
             .mean(Kind::Float);
         ppo.opt.zero_grad();
-        loss.backward();
+        mse.backward();
         ppo.opt.step();
-        losses.push(loss.double_value(&[]));
+        if step == 0 {
+            loss.first = mse.double_value(&[]);
+        }
+        if step + 1 == steps {
+            loss.last = mse.double_value(&[]);
+        }
     }
-    Some(BcLoss {
-        first: losses[0],
-        last: losses[steps - 1],
-    })
+    Some(loss)
 }
 
 #[cfg(test)]

@@ -14,8 +14,8 @@
 //! its latest checkpoint on `--resume` (a fresh run first clones the labeled
 //! demonstrations into the policy when `ppo.bc_steps` asks, `bc.rs`);
 //! [`Trainer::train`] runs the iterations and [`Trainer::finish`] the final evaluation
-//! and `summary.json`. The weighted objective
-//! itself lives in [`crate::objective::combined`].
+//! and `summary.json`. The weighted objective itself lives in
+//! [`crate::objective::combined`].
 
 pub(crate) mod bc;
 pub mod checkpoint;

@@ -374,17 +374,18 @@ fn clone_labeled(
 ) {
     let shape = (cfg.ppo.bc_steps, cfg.ppo.minibatch);
     let (labeled, use_eps) = (&demos.labeled, cfg.method.use_eps);
-    if shape.0 > 0 && labeled.mode.is_empty() {
-        progress.message("behaviour cloning: the dataset has no labeled demonstrations; skipped");
-    }
-    if let Some(l) = bc::warm_start(&mut nets.ppo, labeled, norm, (d, use_eps), shape, rng) {
-        progress.message(&format!(
+    match bc::warm_start(&mut nets.ppo, labeled, norm, (d, use_eps), shape, rng) {
+        Some(l) => progress.message(&format!(
             "behaviour cloning: {} steps on {} labeled transitions, squared error {:.4} -> {:.4}",
             shape.0,
             labeled.mode.len(),
             l.first,
             l.last
-        ));
+        )),
+        // Asked for, but the dataset (a user's task file) has no labeled split.
+        None if shape.0 > 0 => progress
+            .message("behaviour cloning: the dataset has no labeled demonstrations; skipped"),
+        None => {}
     }
 }
 
