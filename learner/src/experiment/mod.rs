@@ -13,7 +13,10 @@
 //!   own.
 //! - [`report`]: mean ± std per table entry beside the paper's number (Markdown) and
 //!   the spec's figure (PNG), from whatever cells have finished.
+//! - [`compare`]: which rows of a column its seeds can tell apart (exact permutation
+//!   test), so "first of seven" is read against the seeds' scatter.
 
+pub mod compare;
 pub mod report;
 pub mod run;
 pub mod spec;

@@ -1,8 +1,10 @@
 //! The report of a grid: per metric a table of mean ± sample std over seeds (with the
-//! number of seeds finished) beside the paper's number, the cells one by one, and the
-//! spec's figure as PNG. Reads each cell's `jobs/<cell>/summary.json` and
+//! number of seeds finished) beside the paper's number, under it each column's best
+//! row and the rows seeds cannot separate from it ([`super::compare`]), the cells one
+//! by one, and the spec's figure as PNG. Reads each cell's `jobs/<cell>/summary.json` and
 //! `metrics.csv`, however the cell was run (job queue or Slurm).
 
+use super::compare;
 use super::spec::{Axis, Cell, ExperimentSpec, Figure};
 use crate::eval::metrics::mean_std;
 use crate::eval::plot::{PlotError, draw_curves};
@@ -63,14 +65,7 @@ pub fn markdown(spec: &ExperimentSpec, cells: &[Cell], results: &[Option<Value>]
         for r in &rows {
             let mut line = format!("| {r} |");
             for c in &cols {
-                let xs: Vec<f64> = cells
-                    .iter()
-                    .zip(results)
-                    .filter(|(cell, _)| {
-                        cell.axis(spec, spec.rows) == r && cell.axis(spec, spec.columns) == c
-                    })
-                    .filter_map(|(_, res)| res.as_ref().and_then(|v| metric(v, m)))
-                    .collect();
+                let xs = scores(spec, cells, results, (r, c), m);
                 let ours = if xs.is_empty() {
                     "–".to_string()
                 } else {
@@ -85,9 +80,79 @@ pub fn markdown(spec: &ExperimentSpec, cells: &[Cell], results: &[Option<Value>]
             let _ = writeln!(s, "{line}");
         }
         let _ = writeln!(s);
+        leaders(&mut s, spec, cells, results, m);
     }
     cell_list(&mut s, spec, cells, results);
     s
+}
+
+/// The finished seeds' values of `metric` in the entry `(row, column)`.
+fn scores(
+    spec: &ExperimentSpec,
+    cells: &[Cell],
+    results: &[Option<Value>],
+    (row, col): (&str, &str),
+    m: &str,
+) -> Vec<f64> {
+    cells
+        .iter()
+        .zip(results)
+        .filter(|(cell, _)| {
+            cell.axis(spec, spec.rows) == row && cell.axis(spec, spec.columns) == col
+        })
+        .filter_map(|(_, res)| res.as_ref().and_then(|v| metric(v, m)))
+        .collect()
+}
+
+/// Under a metric's table, each column's best row and the rows its seeds cannot
+/// separate from it ([`compare::leader`]); nothing for a table of one row.
+fn leaders(
+    s: &mut String,
+    spec: &ExperimentSpec,
+    cells: &[Cell],
+    results: &[Option<Value>],
+    m: &str,
+) {
+    let rows = axis_values(spec, spec.rows);
+    if rows.len() < 2 {
+        return;
+    }
+    let better = if compare::higher_is_better(m) {
+        "highest"
+    } else {
+        "lowest"
+    };
+    let _ = writeln!(
+        s,
+        "Best mean per column ({better}), and the rows an exact two-sided permutation test over seeds cannot separate from it (p >= 0.05):\n"
+    );
+    for c in axis_values(spec, spec.columns) {
+        let entries: Vec<(String, Vec<f64>)> = rows
+            .iter()
+            .map(|r| (r.clone(), scores(spec, cells, results, (r, &c), m)))
+            .collect();
+        let Some(l) = compare::leader(m, &entries) else {
+            continue;
+        };
+        let tied: Vec<String> = l
+            .tied
+            .iter()
+            .map(|t| match t.floor >= 0.05 {
+                false => format!("{} {:.3} (p = {:.2})", t.row, t.mean, t.p),
+                true => format!(
+                    "{} {:.3} (p = {:.2}; these seed counts cannot give less than {:.2})",
+                    t.row, t.mean, t.p, t.floor
+                ),
+            })
+            .collect();
+        let tied = if tied.is_empty() {
+            "none".to_string()
+        } else {
+            tied.join(", ")
+        };
+        let _ = writeln!(s, "- {c}: {} {:.3}; not separated: {tied}", l.row, l.mean);
+    }
+    let _ = writeln!(s);
 }
 
 /// The paper's number for a table entry: the spec's `[paper]`, else the built-in
@@ -308,6 +373,13 @@ mod tests {
             "{md}"
         );
         assert!(md.contains("| ess-infogail | 0.500 ± 0.000 (2) |"), "{md}");
+        // One finished gail seed against two: 1 of the 3 splits is as extreme.
+        assert!(
+            md.contains(
+                "- traj2d: ess-infogail 0.850; not separated: gail 0.200 (p = 0.33; these seed counts cannot give less than 0.33)"
+            ),
+            "{md}"
+        );
         assert!(
             md.contains("| gail.traj2d.s1 | – | – | not finished |"),
             "{md}"
