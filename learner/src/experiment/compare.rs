@@ -10,9 +10,13 @@
 //! two groups' sizes is counted. Its floor is worth knowing: at 3 against 3 seeds the
 //! smallest two-sided p is 0.1, so nothing separates; at 5 against 5 it is 0.008.
 
+use crate::eval::metrics::mean_std;
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
+
+/// The level below which a p-value separates two rows.
+pub const ALPHA: f64 = 0.05;
 
 /// Splits counted exactly up to this many pooled scores (2^20 subsets); above it,
 /// [`MONTE_CARLO_DRAWS`] random splits.
@@ -83,7 +87,7 @@ pub struct Leader {
     pub row: String,
     /// Its mean.
     pub mean: f64,
-    /// The other rows with p >= 0.05 against the leader.
+    /// The other rows with p >= [`ALPHA`] against the leader.
     pub tied: Vec<Tied>,
 }
 
@@ -96,37 +100,47 @@ pub struct Tied {
     pub mean: f64,
     /// Its p against the leader.
     pub p: f64,
-    /// [`smallest_p`] at the two rows' seed counts: at 0.05 or above, no scores could
-    /// have separated them.
+    /// [`smallest_p`] at the two rows' seed counts: at [`ALPHA`] or above, no scores
+    /// could have separated them.
     pub floor: f64,
+}
+
+impl Tied {
+    /// Whether the two rows' seed counts could not have separated them whatever the
+    /// scores ([`Tied::floor`] at or above [`ALPHA`]).
+    pub fn beyond_reach(&self) -> bool {
+        self.floor >= ALPHA
+    }
 }
 
 /// The leader of a column among `rows` (name, scores over seeds; rows without scores
 /// are skipped) for `metric`, or `None` when no row has a score.
 pub fn leader(metric: &str, rows: &[(String, Vec<f64>)]) -> Option<Leader> {
-    let mean = |xs: &[f64]| xs.iter().sum::<f64>() / xs.len() as f64;
     let sign = if higher_is_better(metric) { 1.0 } else { -1.0 };
-    let scored: Vec<&(String, Vec<f64>)> = rows.iter().filter(|(_, xs)| !xs.is_empty()).collect();
-    let best = scored
+    let scored: Vec<(&String, &[f64], f64)> = rows
         .iter()
-        .copied()
-        .max_by(|a, b| (sign * mean(&a.1)).total_cmp(&(sign * mean(&b.1))))?;
+        .filter(|(_, xs)| !xs.is_empty())
+        .map(|(name, xs)| (name, xs.as_slice(), mean_std(xs).0))
+        .collect();
+    let &(best, best_xs, best_mean) = scored
+        .iter()
+        .max_by(|a, b| (sign * a.2).total_cmp(&(sign * b.2)))?;
     let tied = scored
         .iter()
-        .filter(|(name, _)| *name != best.0)
-        .filter_map(|(name, xs)| {
-            let p = permutation_p(&best.1, xs)?;
-            (p >= 0.05).then(|| Tied {
+        .filter(|(name, _, _)| *name != best)
+        .filter_map(|&(name, xs, mean)| {
+            let p = permutation_p(best_xs, xs)?;
+            (p >= ALPHA).then(|| Tied {
                 row: name.clone(),
-                mean: mean(xs),
+                mean,
                 p,
-                floor: smallest_p(best.1.len(), xs.len()),
+                floor: smallest_p(best_xs.len(), xs.len()),
             })
         })
         .collect();
     Some(Leader {
-        row: best.0.clone(),
-        mean: mean(&best.1),
+        row: best.clone(),
+        mean: best_mean,
         tied,
     })
 }

@@ -124,7 +124,8 @@ fn leaders(
     };
     let _ = writeln!(
         s,
-        "Best mean per column ({better}), and the rows an exact two-sided permutation test over seeds cannot separate from it (p >= 0.05):\n"
+        "Best mean per column ({better}), and the rows an exact two-sided permutation test over seeds cannot separate from it (p >= {}):\n",
+        compare::ALPHA
     );
     let mut starred = false;
     for c in axis_values(spec, spec.columns) {
@@ -139,11 +140,11 @@ fn leaders(
             .tied
             .iter()
             .map(|t| {
-                let star = if t.floor >= 0.05 { "*" } else { "" };
+                let star = if t.beyond_reach() { "*" } else { "" };
                 format!("{} {:.3} (p = {:.2}{star})", t.row, t.mean, t.p)
             })
             .collect();
-        starred |= l.tied.iter().any(|t| t.floor >= 0.05);
+        starred |= l.tied.iter().any(compare::Tied::beyond_reach);
         let tied = if tied.is_empty() {
             "none".to_string()
         } else {
@@ -154,7 +155,8 @@ fn leaders(
     if starred {
         let _ = writeln!(
             s,
-            "\n\\* the two rows' seed counts cannot give p < 0.05 whatever the scores (3 against 3: p >= 0.10)."
+            "\n\\* the two rows' seed counts cannot give p < {} whatever the scores (3 against 3: p >= 0.10).",
+            compare::ALPHA
         );
     }
     let _ = writeln!(s);
