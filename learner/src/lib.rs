@@ -12,6 +12,7 @@
 //! | folder | what |
 //! |---|---|
 //! | [`train`] | the training loop (Algorithm 1) as a `Trainer` whose methods are its stages, for all seven methods; [`train::nets`] (policy, value, D with heads Q_c / Q_eps), [`train::ppo`] (PPO, GAE, p(c) through Gumbel-softmax), [`train::optim`] (Adam with a saveable state), [`train::checkpoint`] (what `--resume` continues bit for bit) |
+//! | [`fused`] | the fused CPU backend of the update (`learner.backend`, default): D/Q steps, rewards, PPO and p(c) as passes over the networks' flat buffers, every gradient held to tch's autograd by tests |
 //! | [`objective`] | every objective term, one file each headed by its equation, and their weighted sum for every preset ([`objective::combined`], Eq. 9) |
 //! | [`eval`] | the paper's evaluation: behaviour [`eval::classifier`], NMI / ENT ([`eval::metrics`]), normalised reward; reports, Table 1 view ([`eval::table`]) and PNG figures ([`eval::plot`], [`eval::report`]) |
 //! | [`runlog`] | the MCAP run log `run.mcap` (writer, truncation-tolerant reader) and [`runlog::replay`] (`ess replay`) |
@@ -34,6 +35,7 @@ pub mod eval;
 pub mod experiment;
 pub mod experts;
 pub mod export;
+pub mod fused;
 pub mod import;
 pub mod malloc;
 pub mod objective;

@@ -32,11 +32,31 @@ pub struct TrainArgs {
         conflicts_with_all = ["preset", "config", "env", "seed", "set", "out", "actors", "print_config"]
     )]
     resume: Option<PathBuf>,
+    /// The learner's implementation: `fused` (the default) or `tch` (sets
+    /// learner.backend); with --resume, the backend the run continues on (a checkpoint
+    /// of either resumes on the other).
+    #[arg(long, value_enum)]
+    backend: Option<BackendArg>,
     /// How progress is reported: `human` (a bar or lines on stderr, a summary on
     /// stdout) or `jsonl` (one JSON object per line on stdout: messages, every
     /// iteration's metrics, the final result; what `ess serve` reads).
     #[arg(long, value_enum, default_value = "human")]
     progress: ProgressFormat,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendArg {
+    Fused,
+    Tch,
+}
+
+impl From<BackendArg> for ess_learner::train::Backend {
+    fn from(b: BackendArg) -> Self {
+        match b {
+            BackendArg::Fused => Self::Fused,
+            BackendArg::Tch => Self::Tch,
+        }
+    }
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -120,10 +140,15 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         }
         None => {}
     }
+    let backend = args.backend.map(ess_learner::train::Backend::from);
     let cfg = match &args.resume {
         Some(dir) => ess_learner::train::run_config(dir)
             .map_err(|e| input_err(format!("--resume: {e:#}")))?,
         None => resolve(&args.config)?,
+    };
+    let cfg = match backend {
+        Some(b) => cfg.with_backend(b),
+        None => cfg,
     };
     if let Some(dir) = &args.resume
         && ess_learner::train::checkpoint::latest(&dir.join("checkpoints"))
@@ -168,7 +193,7 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         let mut progress =
             JsonlProgress::new(std::io::stdout().lock()).stop_when_reader_gone(shutdown.clone());
         let result = match args.resume {
-            Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown),
+            Some(_) => ess_learner::train::resume_on(&out, backend, &mut progress, &shutdown),
             None => run(&cfg, &out, &mut progress, &shutdown),
         }
         .map_err(input_if::<ess_learner::train::TrainInputError>)
@@ -179,7 +204,7 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
     }
     let mut progress = CliProgress::new(cfg.run.iterations);
     let result = match args.resume {
-        Some(_) => ess_learner::train::resume(&out, &mut progress, &shutdown),
+        Some(_) => ess_learner::train::resume_on(&out, backend, &mut progress, &shutdown),
         None => run(&cfg, &out, &mut progress, &shutdown),
     }
     .map_err(input_if::<ess_learner::train::TrainInputError>)

@@ -20,6 +20,7 @@
 pub(crate) mod bc;
 pub mod checkpoint;
 pub(crate) mod data;
+mod fused_stages;
 pub mod nets;
 pub mod optim;
 pub mod ppo;
@@ -30,6 +31,7 @@ mod stages;
 pub use data::{
     CodeReweight, Dims, ExpertData, ObsNorm, Rollout, demo_spec, load_or_generate_demos,
 };
+pub use ess_proto::config::Backend;
 pub use records::{CSV_HEADER, EncoderAccuracy, IterationLog, PhaseSeconds, Summary, write_atomic};
 pub use setup::{Nets, TrainInputError, actor_seed};
 pub use stages::Rewards;
@@ -109,6 +111,9 @@ pub struct Trainer<'c> {
     reference: Reference,
     latent: LatentSpec,
     nets: Nets,
+    /// The fused backend (`learner.backend = "fused"` on a configuration it covers);
+    /// `None`: tch runs the update.
+    fused: Option<crate::fused::Fused>,
     /// `None` only while a rollout is collected beside an update (`run.pipeline`).
     actors: Option<Box<dyn RolloutSource>>,
     /// The overlap pipeline's rollout for the next iteration.
@@ -160,7 +165,22 @@ pub fn run_config(out: &Path) -> Result<CheckedConfig> {
 /// threads or processes (unless the checkpoint holds no actor states, see
 /// [`crate::train::checkpoint::TrainState::actors`]).
 pub fn resume(out: &Path, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<RunOutput> {
+    resume_on(out, None, progress, shutdown)
+}
+
+/// [`resume`], the update on `backend` when given (a checkpoint of either backend
+/// resumes on the other: both keep their state in the same tensors).
+pub fn resume_on(
+    out: &Path,
+    backend: Option<ess_proto::config::Backend>,
+    progress: &mut dyn Progress,
+    shutdown: &AtomicBool,
+) -> Result<RunOutput> {
     let cfg = run_config(out)?;
+    let cfg = match backend {
+        Some(b) => cfg.with_backend(b),
+        None => cfg,
+    };
     let mut t = Trainer::new(&cfg, out, progress, true)?;
     let interrupted = t.train(progress, shutdown)?;
     t.finish(progress, interrupted)

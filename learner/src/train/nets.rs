@@ -58,6 +58,16 @@ impl Mlp {
         &self.sizes
     }
 
+    /// The layers, input first.
+    pub fn layers(&self) -> &[nn::Linear] {
+        &self.layers
+    }
+
+    /// Whether the last layer is activated too.
+    pub fn tanh_out(&self) -> bool {
+        self.tanh_out
+    }
+
     /// Parameters flattened in the [`MlpLayout`] order (weight `[out][in]`, then bias).
     pub fn export(&self) -> Vec<f32> {
         let mut out = Vec::new();

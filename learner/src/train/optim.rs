@@ -48,6 +48,68 @@ pub struct Adam {
     grads: nn::Optimizer,
 }
 
+/// An [`Adam`]'s state as slices ([`Adam::flat_mut`]).
+pub struct FlatAdam<'a> {
+    /// Every parameter, back to back.
+    pub params: &'a mut [f32],
+    /// First moments.
+    pub exp_avg: &'a mut [f32],
+    /// Second moments.
+    pub exp_avg_sq: &'a mut [f32],
+    /// Steps taken.
+    pub steps: &'a mut i64,
+    lr: f64,
+    beta1: f64,
+    beta2: f64,
+    eps: f64,
+}
+
+impl FlatAdam<'_> {
+    /// One Adam step with gradient `g` (laid out as `params`): the same operations, in
+    /// the same order and precision, as [`Adam::step`].
+    pub fn step(&mut self, g: &[f32]) {
+        *self.steps += 1;
+        let t = *self.steps as i32;
+        let bc1 = 1.0 - self.beta1.powi(t);
+        let bc2 = 1.0 - self.beta2.powi(t);
+        let (b1, b2) = (self.beta1 as f32, self.beta2 as f32);
+        let (c1, c2) = ((1.0 - self.beta1) as f32, (1.0 - self.beta2) as f32);
+        let (sbc2, eps, step) = (bc2.sqrt() as f32, self.eps as f32, (self.lr / bc1) as f32);
+        crate::fused::math::simd(
+            #[inline(always)]
+            || {
+                let it = self
+                    .params
+                    .iter_mut()
+                    .zip(self.exp_avg.iter_mut())
+                    .zip(self.exp_avg_sq.iter_mut());
+                for (((p, m), v), &g) in it.zip(g) {
+                    *m = *m * b1 + g * c1;
+                    *v = *v * b2 + g * g * c2;
+                    let denom = v.sqrt() / sbc2 + eps;
+                    *p -= *m / denom * step;
+                }
+            },
+        );
+    }
+}
+
+/// Scales `g` so that its L2 norm is at most `max` (as [`Adam::clip_and_step`]);
+/// returns the norm before.
+pub fn clip_norm(g: &mut [f32], max: f64) -> f64 {
+    let total = g
+        .iter()
+        .map(|&x| f64::from(x) * f64::from(x))
+        .sum::<f64>()
+        .sqrt();
+    let coef = max / (total + 1e-6);
+    if coef < 1.0 {
+        let c = coef as f32;
+        g.iter_mut().for_each(|x| *x *= c);
+    }
+    total
+}
+
 /// The saved form of an [`Adam`]: per parameter name, `exp_avg`, `exp_avg_sq` and the
 /// step count.
 #[derive(Debug, Default)]
@@ -191,6 +253,59 @@ impl Adam {
     /// Learning rate.
     pub fn lr(&self) -> f64 {
         self.lr
+    }
+
+    /// Parameters in the flat buffer.
+    pub fn len(&self) -> usize {
+        self.flat.numel()
+    }
+
+    /// True when the optimiser holds no parameter.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Where `t` (one of this optimiser's parameters, or a view of one) starts in the
+    /// flat buffer; `None` for a tensor outside it.
+    pub fn offset_of(&self, t: &Tensor) -> Option<usize> {
+        let base = self.flat.data_ptr() as usize;
+        let at = t.data_ptr() as usize;
+        let len = self.len() * std::mem::size_of::<f32>();
+        (at >= base && at < base + len.max(1) && (at - base).is_multiple_of(4))
+            .then(|| (at - base) / 4)
+    }
+
+    /// The parameters, moments and step count as plain slices, for the fused backend
+    /// ([`crate::fused`]), which updates them in place: the tch variables see every
+    /// change (they are views of the same buffer), so both backends share one state.
+    pub fn flat_mut(&mut self) -> FlatAdam<'_> {
+        let n = self.len();
+        let slice = |t: &Tensor| -> &mut [f32] {
+            if n == 0 {
+                return &mut [];
+            }
+            // SAFETY: `flat`, `exp_avg` and `exp_avg_sq` are three distinct contiguous
+            // CPU float tensors of `n` elements that this optimiser created and owns;
+            // the slices live no longer than the `&mut self` borrow, during which no
+            // tch operation runs on them (the VarStore's variables are views of
+            // `flat`, used only on this thread and not while the borrow lasts).
+            unsafe { std::slice::from_raw_parts_mut(t.data_ptr() as *mut f32, n) }
+        };
+        let (params, exp_avg, exp_avg_sq) = (
+            slice(&self.flat),
+            slice(&self.exp_avg),
+            slice(&self.exp_avg_sq),
+        );
+        FlatAdam {
+            params,
+            exp_avg,
+            exp_avg_sq,
+            steps: &mut self.steps,
+            lr: self.lr,
+            beta1: self.beta1,
+            beta2: self.beta2,
+            eps: self.eps,
+        }
     }
 
     /// A deep copy of the moments and step counts.

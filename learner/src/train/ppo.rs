@@ -275,8 +275,20 @@ impl PpoLearner {
         self.value.forward(input).squeeze_dim(-1)
     }
 
-    /// Runs `epochs` epochs of minibatch updates.
+    /// Runs `epochs` epochs of minibatch updates on tch.
     pub fn update(&mut self, b: &PpoBatch, rng: &mut ChaCha8Rng) -> PpoStats {
+        // Only the fused path can fail (an operand of the wrong shape).
+        self.update_on(b, rng, None).unwrap_or_default()
+    }
+
+    /// Runs `epochs` epochs of minibatch updates, on the fused backend when given
+    /// ([`crate::fused::ppo`]), else on tch; both draw the same minibatches.
+    pub fn update_on(
+        &mut self,
+        b: &PpoBatch,
+        rng: &mut ChaCha8Rng,
+        fused: Option<&mut crate::fused::Fused>,
+    ) -> Result<PpoStats, crate::fused::FusedError> {
         let n = b.old_logp.size()[0] as usize;
         let adv = {
             let m = b.adv.mean(Kind::Float);
@@ -290,6 +302,9 @@ impl PpoLearner {
         let mb = self.cfg.minibatch.min(n).max(1);
         let mut sums = Vec::new();
         let train_prior = self.prior == LatentPrior::Gumbel && self.cfg.prior_lr > 0.0;
+        if let Some(f) = fused {
+            return self.fused_epochs(f, &rows, &mut idx, mb, train_prior, rng);
+        }
         for _ in 0..self.cfg.epochs {
             idx.shuffle(rng);
             for chunk in idx.chunks(mb) {
@@ -335,7 +350,7 @@ impl PpoLearner {
             }
         }
         if sums.is_empty() {
-            return PpoStats::default();
+            return Ok(PpoStats::default());
         }
         // One read of the statistics for the whole update.
         let mean = crate::train::nets::tensor_to_vec(&Tensor::stack(&sums, 0).mean_dim(
@@ -344,13 +359,67 @@ impl PpoLearner {
             Kind::Float,
         ));
         let at = |i: usize| mean.get(i).copied().map_or(f64::NAN, f64::from);
-        PpoStats {
+        Ok(PpoStats {
             policy_loss: at(0),
             value_loss: at(1),
             entropy: at(2),
             approx_kl: at(3),
             clip_frac: at(4),
+        })
+    }
+
+    /// The epochs of [`PpoLearner::update_on`] on the fused backend.
+    fn fused_epochs(
+        &mut self,
+        f: &mut crate::fused::Fused,
+        rows: &PpoRows,
+        idx: &mut [i64],
+        mb: usize,
+        train_prior: bool,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<PpoStats, crate::fused::FusedError> {
+        use crate::fused::ppo::{PpoSettings, RowLayout};
+        let data = crate::fused::floats(&rows.all)?;
+        let [oe, k, _, act] = rows.widths.map(|w| w as usize);
+        let lay = RowLayout {
+            obs_eps: oe,
+            k,
+            act,
+        };
+        let c = &self.cfg;
+        let s = PpoSettings {
+            clip: c.clip,
+            value_coef: c.value_coef as f32,
+            entropy_coef: c.entropy_coef as f32,
+            max_grad_norm: c.max_grad_norm,
+            gumbel_tau: self.gumbel_tau().map(|t| t as f32),
+            train_prior,
+        };
+        let mut sum = PpoStats::default();
+        let mut steps = 0usize;
+        for _ in 0..self.cfg.epochs {
+            idx.shuffle(rng);
+            for chunk in idx.chunks(mb) {
+                let (mut opt, mut prior) = (self.opt.flat_mut(), self.prior_opt.flat_mut());
+                let st = f.ppo.step(
+                    &f.team, &f.policy, &mut opt, &mut prior, data, lay, chunk, &s,
+                )?;
+                sum.policy_loss += st.policy_loss;
+                sum.value_loss += st.value_loss;
+                sum.entropy += st.entropy;
+                sum.approx_kl += st.approx_kl;
+                sum.clip_frac += st.clip_frac;
+                steps += 1;
+            }
         }
+        let d = steps.max(1) as f64;
+        Ok(PpoStats {
+            policy_loss: sum.policy_loss / d,
+            value_loss: sum.value_loss / d,
+            entropy: sum.entropy / d,
+            approx_kl: sum.approx_kl / d,
+            clip_frac: sum.clip_frac / d,
+        })
     }
 
     /// One score-function step on the p(c) logits: the code of each step
@@ -387,6 +456,17 @@ impl PpoLearner {
         self.prior_opt.zero_grad();
         loss.backward();
         self.prior_opt.step();
+    }
+
+    /// The configuration it was built with.
+    pub fn config(&self) -> &PpoConfig {
+        &self.cfg
+    }
+
+    /// How the codes reach the networks: the Gumbel prior recomputes them from their
+    /// noise with this temperature (`Some`), the others feed the stored ones.
+    pub fn gumbel_tau(&self) -> Option<f64> {
+        (self.prior == LatentPrior::Gumbel).then_some(self.tau)
     }
 
     /// p(c) as probabilities.

@@ -261,17 +261,42 @@ pub(super) fn actor_states(
     }
 }
 
-/// Sets libtorch's thread count (`run.torch_threads`, 0: one per core) and seeds it.
-fn init_torch(cfg: &CheckedConfig) {
-    let threads = if cfg.run.torch_threads > 0 {
+/// The learner's threads (`run.torch_threads`, 0: one per core).
+fn learner_threads(cfg: &CheckedConfig) -> usize {
+    if cfg.run.torch_threads > 0 {
         cfg.run.torch_threads
     } else {
         std::thread::available_parallelism()
             .map(|n| n.get())
             .unwrap_or(1)
-    };
-    tch::set_num_threads(threads as i32);
+    }
+}
+
+/// Sets libtorch's thread count and seeds it.
+fn init_torch(cfg: &CheckedConfig) {
+    tch::set_num_threads(learner_threads(cfg) as i32);
     tch::manual_seed(cfg.run.seed as i64);
+}
+
+/// The fused backend for `nets` when the configuration asks for it and it covers the
+/// configuration; otherwise tch, and the run's log says why.
+pub(crate) fn fused_backend(
+    cfg: &CheckedConfig,
+    nets: &Nets,
+    progress: &mut dyn Progress,
+) -> Result<Option<crate::fused::Fused>> {
+    if cfg.learner.backend != ess_proto::config::Backend::Fused {
+        return Ok(None);
+    }
+    if let Some(why) = crate::fused::not_covered(cfg) {
+        let msg = format!(
+            "learner.backend = \"fused\" does not cover this run ({why}): the update runs on tch"
+        );
+        tracing::warn!("{msg}");
+        progress.message(&msg);
+        return Ok(None);
+    }
+    Ok(Some(crate::fused::Fused::new(nets, learner_threads(cfg))?))
 }
 
 impl LoopState {
@@ -491,6 +516,7 @@ impl<'c> Trainer<'c> {
             clone_labeled(cfg, &mut nets, &demos, &norm, dims, &mut st.rng, progress);
             (st, None)
         };
+        let fused = fused_backend(cfg, &nets, progress)?;
         let (runlog, csv) = open_logs(cfg, out, &st, resuming)?;
         Ok(Self {
             cfg,
@@ -503,6 +529,7 @@ impl<'c> Trainer<'c> {
             reference,
             latent,
             nets,
+            fused,
             actors: Some(actors),
             prefetch: None,
             resume_weights,

@@ -86,19 +86,25 @@ impl Trainer<'_> {
     /// The D/Q, reward and PPO stages on `rollout`, timed into `log`.
     pub fn update(&mut self, it: usize, rollout: &Rollout, log: &mut IterationLog) -> Result<()> {
         let t1 = Instant::now();
-        self.update_discriminator(it, rollout, log);
+        self.update_discriminator(it, rollout, log)?;
         log.disc_s = t1.elapsed().as_secs_f64();
         let t2 = Instant::now();
         let rewards = self.policy_rewards(it, rollout, log)?;
-        self.update_policy(rollout, &rewards, log);
+        self.update_policy(rollout, &rewards, log)?;
         log.ppo_s = t2.elapsed().as_secs_f64();
         Ok(())
     }
 
     /// `disc.steps` steps of the D/Q side of Eq. 9 ([`disc_objective`]) on minibatches
     /// of the rollout and the demonstrations; with `method.rim_prior_grad`, RIM's KL
-    /// term moves p(c) too (Eq. 9 minimises L_RIM over p(c)).
-    pub fn update_discriminator(&mut self, it: usize, r: &Rollout, log: &mut IterationLog) {
+    /// term moves p(c) too (Eq. 9 minimises L_RIM over p(c)). On the fused backend
+    /// each step is [`Trainer::fused_disc_step`] on the same draws.
+    pub fn update_discriminator(
+        &mut self,
+        it: usize,
+        r: &Rollout,
+        log: &mut IterationLog,
+    ) -> Result<()> {
         let cfg = self.cfg;
         let m = &cfg.method;
         let w = DiscWeights::at(m, it);
@@ -114,16 +120,26 @@ impl Trainer<'_> {
         let no_rows = Tensor::zeros([0], (Kind::Int64, tch::Device::Cpu));
         for step in 0..cfg.disc.steps {
             let rng = &mut self.st.rng;
-            let gi = Tensor::from_slice(&match &draw {
+            let gi = match &draw {
                 Some(d) => d.sample(rng, batch),
                 None => sample_idx(rng, n_gen, batch),
-            });
-            let ei = Tensor::from_slice(&sample_idx(rng, n_exp, batch));
-            let li = if w.qc_labeled > 0.0 && n_lab > 0 {
-                Tensor::from_slice(&sample_idx(rng, n_lab, batch.min(n_lab)))
-            } else {
-                no_rows.shallow_clone()
             };
+            let ei = sample_idx(rng, n_exp, batch);
+            let li = if w.qc_labeled > 0.0 && n_lab > 0 {
+                sample_idx(rng, n_lab, batch.min(n_lab))
+            } else {
+                Vec::new()
+            };
+            if self.fused.is_some() {
+                let last = step + 1 == cfg.disc.steps;
+                self.fused_disc_step(r, &w, [&gi, &ei, &li], last.then_some(&mut *log))?;
+                continue;
+            }
+            let (gi, ei, li) = (
+                Tensor::from_slice(&gi),
+                Tensor::from_slice(&ei),
+                Tensor::from_slice(&li),
+            );
             let e = &self.expert;
             let mode = if w.qc_full_labels > 0.0 {
                 e.unlabeled_mode.index_select(0, &ei)
@@ -166,6 +182,7 @@ impl Trainer<'_> {
                 log_disc_terms(&terms, log);
             }
         }
+        Ok(())
     }
 
     /// Moves the running estimate of the demos' mode marginal toward Q_c's mean
@@ -193,24 +210,14 @@ impl Trainer<'_> {
         let cfg = self.cfg;
         let m = &cfg.method;
         let rw = RewardWeights::at(m, it, &self.rollout_code_probs());
-        let ppo = &mut self.nets.ppo;
         let next_n = self.norm.apply(&r.all.next_obs);
-        let eps = r.eps.view([-1, 1]);
-        let n = r.len() as i64;
-        let (reward, values, disc_r) = tch::no_grad(|| {
-            let o = self.nets.disc.forward(&r.disc_x);
-            let reward = policy_reward(rw, &o.d_logit, &o.qc_logits, &r.code, &o.qeps, &r.eps);
-            // V(s) and V(s') in one pass of the value net.
-            let vin = Tensor::cat(
-                &[
-                    Tensor::cat(&[&r.obs_n, &eps, &r.code], 1),
-                    Tensor::cat(&[&next_n, &eps, &r.code], 1),
-                ],
-                0,
-            );
-            let v = tensor_to_vec(&ppo.values(&vin));
-            (tensor_to_vec(&reward), v, disc_term(rw, &o.d_logit))
-        });
+        let n = r.len();
+        let (reward, values, disc_r) = if self.fused.is_some() {
+            self.fused_rewards(rw, r, &next_n)?
+        } else {
+            self.tch_rewards(rw, r, &next_n)
+        };
+        let ppo = &mut self.nets.ppo;
         if m.prior == LatentPrior::Gumbel && m.prior_score_coef > 0.0 {
             ppo.prior_score_step(&r.code, &disc_r, m.prior_score_coef);
         }
@@ -224,7 +231,7 @@ impl Trainer<'_> {
         log.reward_mean =
             reward.iter().map(|&r| r as f64).sum::<f64>() / reward.len().max(1) as f64;
         self.runlog.chunks(it, &r.chunks, &reward)?;
-        let (values, next_values) = values.split_at(n as usize);
+        let (values, next_values) = values.split_at(n);
         Ok(Rewards {
             reward,
             values: values.to_vec(),
@@ -232,9 +239,39 @@ impl Trainer<'_> {
         })
     }
 
+    /// [`Trainer::policy_rewards`]'s rewards (Eq. 9's policy terms), `V(s)` and
+    /// `V(s')` back to back, and D's reward term, on tch.
+    fn tch_rewards(
+        &self,
+        rw: RewardWeights,
+        r: &Rollout,
+        next_n: &Tensor,
+    ) -> (Vec<f32>, Vec<f32>, Tensor) {
+        let eps = r.eps.view([-1, 1]);
+        tch::no_grad(|| {
+            let o = self.nets.disc.forward(&r.disc_x);
+            let reward = policy_reward(rw, &o.d_logit, &o.qc_logits, &r.code, &o.qeps, &r.eps);
+            // V(s) and V(s') in one pass of the value net.
+            let vin = Tensor::cat(
+                &[
+                    Tensor::cat(&[&r.obs_n, &eps, &r.code], 1),
+                    Tensor::cat(&[next_n, &eps, &r.code], 1),
+                ],
+                0,
+            );
+            let v = tensor_to_vec(&self.nets.ppo.values(&vin));
+            (tensor_to_vec(&reward), v, disc_term(rw, &o.d_logit))
+        })
+    }
+
     /// GAE, then PPO on policy and value; with the Gumbel prior, p(c) through the
     /// recomputed codes (Sec. 3.2, [`crate::train::ppo`]).
-    pub fn update_policy(&mut self, r: &Rollout, rw: &Rewards, log: &mut IterationLog) {
+    pub fn update_policy(
+        &mut self,
+        r: &Rollout,
+        rw: &Rewards,
+        log: &mut IterationLog,
+    ) -> Result<()> {
         let (ad, k) = (self.dims.act, self.dims.codes);
         let (adv, ret) = rollout_gae(
             &self.cfg.ppo,
@@ -255,12 +292,13 @@ impl Trainer<'_> {
             returns: Tensor::from_slice(&ret),
         };
         let ppo = &mut self.nets.ppo;
-        let st = ppo.update(&batch, &mut self.st.rng);
+        let st = ppo.update_on(&batch, &mut self.st.rng, self.fused.as_mut())?;
         log.policy_loss = st.policy_loss;
         log.value_loss = st.value_loss;
         log.entropy = st.entropy;
         log.approx_kl = st.approx_kl;
         log.prior = prior_string(&ppo.prior_probs());
+        Ok(())
     }
 
     /// The paper's evaluation of the current policy (version `it`): `episodes` per code,

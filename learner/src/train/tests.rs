@@ -124,3 +124,104 @@ fn a_fresh_run_clones_the_labeled_demonstrations_only_when_asked() {
         .collect();
     assert!(errors[1] < 0.5 * errors[0], "{line}");
 }
+
+/// A small Traj2D run's configuration on `backend`.
+fn small_run(backend: Backend) -> CheckedConfig {
+    let mut b = ConfigBuilder::new();
+    for kv in [
+        "run.iterations=12",
+        "run.transport=\"threads\"",
+        "run.actors=1",
+        "run.eval_every=0",
+        "run.rollout_steps=400",
+        "disc.steps=4",
+        "disc.batch=64",
+        "ppo.epochs=2",
+        "ppo.minibatch=100",
+        "run.eval_episodes=1",
+        "run.reference_episodes=2",
+        "demos.majority_episodes=4",
+        "run.torch_threads=2",
+    ] {
+        b.set(kv).expect(kv);
+    }
+    b.build().expect("config").with_backend(backend)
+}
+
+/// Iterations `range` of the run in `out` (fresh when it starts at 1, else resumed
+/// from its checkpoint), a checkpoint after the last; their rows.
+fn iterations(
+    cfg: &CheckedConfig,
+    out: &Path,
+    range: std::ops::RangeInclusive<usize>,
+) -> Vec<IterationLog> {
+    let resuming = *range.start() > 1;
+    let mut t = Trainer::new(cfg, out, &mut Quiet, resuming).expect("trainer");
+    assert_eq!(t.st.iters_done + 1, *range.start());
+    assert_eq!(t.fused.is_some(), cfg.learner.backend == Backend::Fused);
+    let mut rows = Vec::new();
+    for it in range {
+        let log = t.iteration(it).expect("iteration");
+        rows.push(log.clone());
+        t.record(log, &mut Quiet).expect("record");
+    }
+    t.checkpoint().expect("checkpoint");
+    rows
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for e in std::fs::read_dir(from).expect("read_dir") {
+        let e = e.expect("entry");
+        let dest = to.join(e.file_name());
+        if e.file_type().expect("type").is_dir() {
+            copy_dir(&e.path(), &dest);
+        } else {
+            std::fs::copy(e.path(), dest).expect("copy");
+        }
+    }
+}
+
+/// The losses of an iteration's row, for comparing two continuations.
+fn losses(l: &IterationLog) -> [f64; 6] {
+    [
+        l.disc_bce,
+        l.qc_labeled,
+        l.qeps,
+        l.rim_entropy,
+        l.policy_loss,
+        l.value_loss,
+    ]
+}
+
+/// Ten iterations on one backend, a checkpoint, then iteration 11 continued on the
+/// other backend and on the same one: both continuations start from the same state
+/// (the checkpoint holds the one set of tensors both backends update), so their
+/// iteration 11 agrees up to float rounding. Both directions.
+#[test]
+fn a_checkpoint_of_either_backend_resumes_on_the_other() {
+    for (first, other) in [
+        (Backend::Fused, Backend::Tch),
+        (Backend::Tch, Backend::Fused),
+    ] {
+        let dir = tempfile::tempdir().expect("tmp");
+        let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+        let first_cfg = small_run(first);
+        let rows = iterations(&first_cfg, &a, 1..=10);
+        assert_eq!(rows.len(), 10);
+        copy_dir(&a, &b);
+        let same = iterations(&first_cfg, &a, 11..=11);
+        let switched = iterations(&small_run(other), &b, 11..=11);
+        for (x, y) in losses(&switched[0]).iter().zip(losses(&same[0])) {
+            assert!(
+                (x - y).abs() <= 1e-4 * y.abs().max(1e-2),
+                "{first:?} -> {other:?}: {:?} vs {:?}",
+                losses(&switched[0]),
+                losses(&same[0])
+            );
+        }
+        // And the switched run goes on from its own checkpoint.
+        let more = iterations(&small_run(other), &b, 12..=12);
+        assert_eq!(more[0].iteration, 12);
+    }
+}

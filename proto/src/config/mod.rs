@@ -138,6 +138,29 @@ pub enum Pipeline {
     Overlap,
 }
 
+/// Which implementation runs the learner's update ([`LearnerConfig::backend`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backend {
+    /// The fused CPU passes of `ess-learner`'s `fused` module (the default): the same
+    /// objective as `tch`, several times faster at the learner's sizes. A
+    /// configuration it does not cover (R1's gradient penalty) runs on `tch`, and the
+    /// run's log says so.
+    #[default]
+    Fused,
+    /// libtorch's operations and autograd (the reference implementation).
+    Tch,
+}
+
+/// The learner's implementation.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerConfig {
+    /// `fused` (default) or `tch`; both read and write the same networks, so a
+    /// checkpoint of one resumes on the other.
+    pub backend: Backend,
+}
+
 /// Form of the discriminator's term in the policy reward.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -520,8 +543,9 @@ pub struct RunConfig {
     /// Seconds without a heartbeat after which an actor process counts as hung and is
     /// restarted (actors beat every 0.2 s, also while collecting).
     pub actor_timeout_s: f64,
-    /// libtorch intra-op threads (0: one per core; the actors wait while the learner
-    /// updates, so they do not compete for them).
+    /// The learner's threads: libtorch's intra-op threads, and the fused backend's
+    /// (0: one per core; the actors wait while the learner updates, so they do not
+    /// compete for them).
     pub torch_threads: usize,
     /// Evaluate every this many iterations (0: only at the end).
     pub eval_every: usize,
@@ -586,6 +610,8 @@ pub struct TrainConfig {
     pub disc: DiscConfig,
     /// Run budget and evaluation.
     pub run: RunConfig,
+    /// The learner's implementation.
+    pub learner: LearnerConfig,
     /// Actor hosts on other machines (none by default).
     pub remote: RemoteConfig,
 }
@@ -602,6 +628,12 @@ impl std::ops::Deref for CheckedConfig {
 }
 
 impl CheckedConfig {
+    /// The same configuration run on `backend` (the backend has no range to check).
+    pub fn with_backend(mut self, backend: Backend) -> Self {
+        self.0.learner.backend = backend;
+        self
+    }
+
     /// The checked configuration as TOML (what goes into the run directory).
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(&self.0).unwrap_or_else(|e| format!("# unserializable: {e}\n"))
