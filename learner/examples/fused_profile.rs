@@ -4,7 +4,7 @@
 //! bench/learner.md's per-step table.
 //!
 //! `cargo run --release -p ess-learner --example fused_profile -- [--env reacher]
-//! [--threads 2] [--steps 200] [--only fused|tch] [--phase disc|ppo]`
+//! [--threads 2] [--steps 200] [--only fused|tch] [--phase disc|ppo] [--set key=value]...`
 
 use ess_learner::fused::Fused;
 use ess_learner::fused::disc::{DiscDraw, DiscSources};
@@ -46,8 +46,15 @@ fn main() -> anyhow::Result<()> {
     let phase = arg("--phase", "");
     tch::set_num_threads(threads as i32);
     tch::manual_seed(0);
+    let set: Vec<String> = std::env::args()
+        .collect::<Vec<_>>()
+        .windows(2)
+        .filter(|w| w[0] == "--set")
+        .map(|w| w[1].clone())
+        .collect();
     let cfg = ConfigLayers {
         env: Some(env.clone()),
+        set,
         ..Default::default()
     }
     .resolve()?;

@@ -198,6 +198,14 @@ impl Trainer<'_> {
     /// from); `Ok(true)` when `shutdown` stopped it early.
     pub fn train(&mut self, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<bool> {
         progress.message("training");
+        if self.fused.is_some() {
+            // The fused backend's threads do the update; libtorch keeps only the small
+            // operations around it, on this thread. With more, its OpenMP workers spin
+            // after each of those for a while and take the cores the fused threads
+            // need (16% of a Reacher run's samples were libgomp's spin-wait;
+            // bench/learner.md).
+            tch::set_num_threads(1);
+        }
         self.train_started = Instant::now();
         for it in self.st.iters_done + 1..=self.cfg.run.iterations {
             if shutdown.load(Ordering::Relaxed) {
