@@ -135,6 +135,7 @@ fn main() -> anyhow::Result<()> {
                 expert: &eiv,
                 labeled: &liv,
                 noise: &[],
+                report: false,
             };
             let t = Instant::now();
             for i in 0..steps + 10 {

@@ -205,3 +205,38 @@ pub unsafe fn dot_gemm(
         i0 += mi;
     }
 }
+
+/// Adam's moments and parameters on the whole vectors (see
+/// [`crate::train::optim::FlatAdam::step`], whose operation order this keeps: no fused
+/// multiply-adds, as libtorch's separate operations); returns how many elements.
+///
+/// # Safety
+/// The CPU must have AVX-512F ([`available`]).
+#[target_feature(enable = "avx512f")]
+pub unsafe fn adam(
+    p: &mut [f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    g: &[f32],
+    [b1, c1, b2, c2, sbc2, eps, step]: [f32; 7],
+) -> usize {
+    let n = p.len().min(m.len()).min(v.len()).min(g.len()) / LANES * LANES;
+    let (pp, mp, vp, gp) = (p.as_mut_ptr(), m.as_mut_ptr(), v.as_mut_ptr(), g.as_ptr());
+    for i in (0..n).step_by(LANES) {
+        let gv = _mm512_loadu_ps(gp.add(i));
+        let mv = _mm512_add_ps(
+            _mm512_mul_ps(_mm512_loadu_ps(mp.add(i)), set(b1)),
+            _mm512_mul_ps(gv, set(c1)),
+        );
+        let vv = _mm512_add_ps(
+            _mm512_mul_ps(_mm512_loadu_ps(vp.add(i)), set(b2)),
+            _mm512_mul_ps(_mm512_mul_ps(gv, gv), set(c2)),
+        );
+        let denom = _mm512_add_ps(_mm512_div_ps(_mm512_sqrt_ps(vv), set(sbc2)), set(eps));
+        let upd = _mm512_mul_ps(_mm512_div_ps(mv, denom), set(step));
+        _mm512_storeu_ps(mp.add(i), mv);
+        _mm512_storeu_ps(vp.add(i), vv);
+        _mm512_storeu_ps(pp.add(i), _mm512_sub_ps(_mm512_loadu_ps(pp.add(i)), upd));
+    }
+    n
+}

@@ -85,6 +85,9 @@ pub struct DiscDraw<'a> {
     pub labeled: &'a [i64],
     /// Noise of the contrastive copies `[n_con][inp]` (the first `n_con` expert rows).
     pub noise: &'a [f32],
+    /// Compute every term's value (the logged step); else only the gradients' (the
+    /// BCE's value costs a logarithm per row).
+    pub report: bool,
 }
 
 /// What a step reports (as [`crate::objective::combined::DiscTerms`]).
@@ -341,7 +344,8 @@ impl DiscStep {
             ..Default::default()
         };
         let f = |x: f64| x as f32;
-        r.bce = terms::disc_bce(&h, &mut d, e, g, f(w.disc));
+        s.reset();
+        r.bce = terms::disc_bce(&h, &mut d, (e, g), f(w.disc), draw.report, s);
         let gen_rows = |data: &[f32], width: usize, out: &mut Vec<f32>| -> Result<(), ShapeError> {
             out.clear();
             for &i in draw.gen_ {

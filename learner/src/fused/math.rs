@@ -8,13 +8,6 @@
 //! below |x| = 0.625 and `1 - 2 / (exp(2x) + 1)` above. The tests hold each to the
 //! standard library within 1e-6 relative (absolute near 0).
 
-/// Runs `f` with the CPU's widest vector instructions enabled (so the loops it inlines
-/// are vectorised for them).
-#[inline(always)]
-pub fn simd<R>(f: impl FnOnce() -> R) -> R {
-    pulp::Arch::new().dispatch(f)
-}
-
 pub(super) const LOG2E: f32 = std::f32::consts::LOG2_E;
 
 /// `1.5 * 2^23`: adding it to a float below 2^22 in magnitude rounds that float to an
@@ -148,6 +141,26 @@ pub fn sum(x: &[f32]) -> f32 {
         (done, lanes) = unsafe { super::avx512::sum(x) };
     }
     lanes.iter().sum::<f32>() + x[done..].iter().sum::<f32>()
+}
+
+/// One Adam step over flat buffers (`consts`: beta1, 1 - beta1, beta2, 1 - beta2,
+/// sqrt(bias correction 2), eps, lr / bias correction 1; the order of operations of
+/// [`crate::train::optim::Adam`]'s tch version).
+pub fn adam(p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32], consts: [f32; 7]) {
+    let mut done = 0;
+    #[cfg(target_arch = "x86_64")]
+    if wide() {
+        // SAFETY: as in `tanh_bias_inplace`.
+        done = unsafe { super::avx512::adam(p, m, v, g, consts) };
+    }
+    let [b1, c1, b2, c2, sbc2, eps, step] = consts;
+    let it = p[done..].iter_mut().zip(&mut m[done..]).zip(&mut v[done..]);
+    for (((p, m), v), &g) in it.zip(&g[done..]) {
+        *m = *m * b1 + g * c1;
+        *v = *v * b2 + g * g * c2;
+        let denom = v.sqrt() / sbc2 + eps;
+        *p -= *m / denom * step;
+    }
 }
 
 /// `x[i] = e^(x[i] + shift)`.

@@ -85,11 +85,24 @@ pub struct Scratch {
     sim: Vec<f32>,
     z: Vec<f32>,
     dz: Vec<f32>,
+    /// The columns `logp` and `p` hold (several terms read the expert rows' softmax).
+    memo: Option<Cols>,
+}
+
+impl Scratch {
+    /// Forgets the softmax held (new heads' outputs).
+    pub fn reset(&mut self) {
+        self.memo = None;
+    }
 }
 
 /// `log softmax` and `softmax` over Q_c's K logits of every column of `c`, into
 /// `s.logp` and `s.p` (`[K][len]` each).
 fn softmax(h: &Heads<'_, &[f32]>, c: Cols, s: &mut Scratch) {
+    if s.memo == Some(c) {
+        return;
+    }
+    s.memo = Some(c);
     let (k, len) = (h.k, c.len);
     let [m, sum] = &mut s.col;
     m.clear();
@@ -130,28 +143,44 @@ fn softmax(h: &Heads<'_, &[f32]>, c: Cols, s: &mut Scratch) {
 }
 
 /// Eq. 1, [`crate::objective::disc_bce::disc_bce`]: `mean_E softplus(-logit) +
-/// mean_G softplus(logit)`; gradient `(sigmoid(x) - target) / rows`.
+/// mean_G softplus(logit)`; gradient `(sigmoid(x) - target) / rows`. The value (a
+/// logarithm per row) only when `value` (the step that is logged); else 0.
 pub fn disc_bce(
     h: &Heads<'_, &[f32]>,
     d: &mut Heads<'_, &mut [f32]>,
-    expert: Cols,
-    gen_: Cols,
+    (expert, gen_): (Cols, Cols),
     w: f32,
+    value: bool,
+    s: &mut Scratch,
 ) -> f64 {
-    let mut value = 0.0f64;
+    let mut total = 0.0f64;
     for (c, target) in [(expert, 1.0f32), (gen_, 0.0)] {
         if c.len == 0 {
             continue;
         }
-        let inv = 1.0 / c.len as f32;
+        let inv = w / c.len as f32;
+        // e = exp(-|x|): sigmoid(x) = 1 / (1 + e) or e / (1 + e), softplus(+-x) =
+        // max(+-x, 0) + ln(1 + e), both without overflow.
+        let e = &mut s.z;
+        e.clear();
+        e.extend(h.d(c).iter().map(|x| -x.abs()));
+        math::exp_inplace(e, 0.0);
         let mut sum = 0.0f64;
-        for (g, &x) in d.row_mut(0, c).iter_mut().zip(h.d(c)) {
-            sum += f64::from(math::softplus(if target == 1.0 { -x } else { x }));
-            *g += w * (math::sigmoid(x) - target) * inv;
+        for ((g, &x), &e) in d.row_mut(0, c).iter_mut().zip(h.d(c)).zip(e.iter()) {
+            let sig = if x >= 0.0 {
+                1.0 / (1.0 + e)
+            } else {
+                e / (1.0 + e)
+            };
+            *g += (sig - target) * inv;
+            if value {
+                let y = if target == 1.0 { -x } else { x };
+                sum += f64::from(y.max(0.0) + math::ln(1.0 + e));
+            }
         }
-        value += sum / c.len as f64;
+        total += sum / c.len as f64;
     }
-    value
+    total
 }
 
 /// [`crate::objective::qeps::qeps_mae`]: `mean |Q_eps - eps|` on the generated rows.
@@ -497,9 +526,10 @@ mod tests {
         let v = disc_bce(
             &Heads::new(&o[..], N, K),
             &mut Heads::new(&mut g[..], N, K),
-            E,
-            G,
+            (E, G),
             0.7,
+            true,
+            &mut Scratch::default(),
         );
         let (e, p) = (leaf(&o, 0, 1, E), leaf(&o, 0, 1, G));
         let t = objective::disc_bce::disc_bce(&e.view([-1]), &p.view([-1]));

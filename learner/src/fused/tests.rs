@@ -345,6 +345,7 @@ fn disc_step(cfg: &CheckedConfig, d: Dims, a: &mut Nets, b: &mut Nets, worst: &m
         expert: &ei,
         labeled: &li,
         noise: floats(&noise).unwrap(),
+        report: true,
     };
     let lpv = tensor_to_vec(&lp);
     let rep = f

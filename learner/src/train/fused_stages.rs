@@ -68,6 +68,7 @@ impl Trainer<'_> {
                 Some(t) => floats(t)?,
                 None => &[],
             },
+            report: log.is_some(),
         };
         let logits = floats(&self.nets.ppo.prior_logits)?.to_vec();
         let log_prior = log_softmax(&logits);

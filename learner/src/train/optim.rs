@@ -75,22 +75,8 @@ impl FlatAdam<'_> {
         let (b1, b2) = (self.beta1 as f32, self.beta2 as f32);
         let (c1, c2) = ((1.0 - self.beta1) as f32, (1.0 - self.beta2) as f32);
         let (sbc2, eps, step) = (bc2.sqrt() as f32, self.eps as f32, (self.lr / bc1) as f32);
-        crate::fused::math::simd(
-            #[inline(always)]
-            || {
-                let it = self
-                    .params
-                    .iter_mut()
-                    .zip(self.exp_avg.iter_mut())
-                    .zip(self.exp_avg_sq.iter_mut());
-                for (((p, m), v), &g) in it.zip(g) {
-                    *m = *m * b1 + g * c1;
-                    *v = *v * b2 + g * g * c2;
-                    let denom = v.sqrt() / sbc2 + eps;
-                    *p -= *m / denom * step;
-                }
-            },
-        );
+        let consts = [b1, c1, b2, c2, sbc2, eps, step];
+        crate::fused::math::adam(self.params, self.exp_avg, self.exp_avg_sq, g, consts);
     }
 }
 
