@@ -143,6 +143,7 @@ pub struct DiscStep {
     out: Vec<f32>,
     dout: Vec<f32>,
     g: Vec<f32>,
+    labels: Vec<i64>,
     scratch: Scratch,
 }
 
@@ -368,13 +369,14 @@ impl DiscStep {
             r.qc_generated = Some(terms::soft_ce(&h, &mut d, g, &tmp, f(w.qc_generated), s));
         }
         self.g = tmp;
+        let labels = &mut self.labels;
         if w.qc_full_labels > 0.0 {
-            let modes = pick(src.expert_mode, draw.expert)?;
-            terms::hard_ce(&h, &mut d, e, &modes, f(w.qc_full_labels), s)?;
+            pick(src.expert_mode, draw.expert, labels)?;
+            terms::hard_ce(&h, &mut d, e, labels, f(w.qc_full_labels), s)?;
         }
         if lay.labeled > 0 {
-            let labels = pick(src.labels, draw.labeled)?;
-            r.qc_labeled = Some(terms::hard_ce(&h, &mut d, l, &labels, f(w.qc_labeled), s)?);
+            pick(src.labels, draw.labeled, labels)?;
+            r.qc_labeled = Some(terms::hard_ce(&h, &mut d, l, labels, f(w.qc_labeled), s)?);
         }
         terms::mean_prediction(&h, e, &mut r.expert_marginal, s);
         if w.rim > 0.0 {
@@ -470,14 +472,14 @@ impl DiscStep {
     }
 }
 
-/// `values[idx[i]]` for every index.
-fn pick(values: &[i64], idx: &[i64]) -> Result<Vec<i64>, ShapeError> {
-    idx.iter()
-        .map(|&i| {
-            usize::try_from(i)
-                .ok()
-                .and_then(|i| values.get(i).copied())
-                .ok_or_else(|| ShapeError::new(format!("row {i} past {} labels", values.len())))
-        })
-        .collect()
+/// `values[idx[i]]` for every index, into `out`.
+fn pick(values: &[i64], idx: &[i64], out: &mut Vec<i64>) -> Result<(), ShapeError> {
+    out.clear();
+    for &i in idx {
+        let v = usize::try_from(i).ok().and_then(|i| values.get(i).copied());
+        out.push(
+            v.ok_or_else(|| ShapeError::new(format!("row {i} past {} labels", values.len())))?,
+        );
+    }
+    Ok(())
 }
