@@ -137,34 +137,20 @@ fn main() -> anyhow::Result<()> {
                 noise: &[],
                 report: false,
             };
-            let t = Instant::now();
-            for i in 0..steps + 10 {
-                if i == 10 {
-                    let _ = t.elapsed();
-                }
+            let mut step = || -> anyhow::Result<()> {
                 let mut opt = nets.dopt.flat_mut();
-                fused.disc.step(
-                    &fused.team,
-                    &fused.disc_net,
-                    &mut opt,
-                    &src,
-                    &draw,
-                    &w,
-                    &lpv,
-                )?;
+                let (team, net) = (&fused.team, &fused.disc_net);
+                fused
+                    .disc
+                    .step(team, net, &mut opt, &src, &draw, &w, &lpv)?;
+                Ok(())
+            };
+            for _ in 0..10 {
+                step()?;
             }
             let t = Instant::now();
             for _ in 0..steps {
-                let mut opt = nets.dopt.flat_mut();
-                fused.disc.step(
-                    &fused.team,
-                    &fused.disc_net,
-                    &mut opt,
-                    &src,
-                    &draw,
-                    &w,
-                    &lpv,
-                )?;
+                step()?;
             }
             report("D/Q step, fused", t.elapsed().as_secs_f64(), steps, dflop);
         }

@@ -232,7 +232,7 @@ impl Stack<'_, '_> {
 }
 
 impl DiscStep {
-    /// The last step's gradient, laid out as the parameters (after PPO's norm clip).
+    /// The last step's gradient, laid out as the parameters.
     pub fn grad(&self) -> &[f32] {
         &self.g
     }
