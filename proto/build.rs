@@ -1,4 +1,5 @@
-//! Compiles `proto/ess/v1/*.proto` and ONNX's `proto/onnx/onnx.proto` with the pure-Rust
+//! Compiles `proto/ess/v1/*.proto`, ONNX's `proto/onnx/onnx.proto` and TensorBoard's
+//! event messages (`proto/tensorboard/compat/proto/event.proto`) with the pure-Rust
 //! `protox` (no `protoc` needed):
 //! prost messages always; tonic client and server stubs with the `grpc` feature. The
 //! encoded `FileDescriptorSet` is kept for gRPC reflection and for the protobuf
@@ -39,5 +40,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_server(false)
         .build_client(false)
         .compile_fds(onnx)?;
+    // TensorBoard's own Event / Summary messages (vendored from tensorflow/tensorboard),
+    // for the run's event files (`ess_learner::tboard`).
+    let tb = protox::compile([root.join("tensorboard/compat/proto/event.proto")], [&root])?;
+    tonic_prost_build::configure()
+        .build_server(false)
+        .build_client(false)
+        .compile_fds(tb)?;
     Ok(())
 }

@@ -9,8 +9,9 @@
 #   - with --nextest (what `make test` passes): cargo-nextest (crates.io, `cargo
 #     install --locked`, into ~/.cargo/bin) when `cargo nextest` is missing, and a check
 #     that the `openssl` command the TLS tests make certificates with is there; and
-#     onnxruntime + numpy from PyPI into .deps/pytest, the outside runtime the ONNX
-#     export test runs the exported policy in (tests only: `ess` never calls Python).
+#     onnxruntime + numpy + tensorboard from PyPI into .deps/pytest, the outside
+#     readers the tests check Ess's files with (the ONNX export runs in onnxruntime, the
+#     event files are read by TensorBoard's loader; tests only: `ess` never calls Python).
 #   - with --fuzz (what `make fuzz` passes): cargo-fuzz (crates.io) when missing, and a
 #     check that a nightly toolchain is installed (libFuzzer's instrumentation needs
 #     it; `make test`'s short fuzz run does not).
@@ -129,18 +130,27 @@ if [ "$with_nextest" = 1 ]; then
     die "the TLS tests need the openssl command (Debian: apt-get install openssl)"
   ORT_VERSION=1.23.2
   NUMPY_VERSION=2.3.5
+  # TensorBoard's own event reader for the event-file test, with what it imports.
+  TB_VERSION=2.21.0
+  PB_VERSION=7.36.2
+  ABSL_VERSION=2.5.1
+  PACKAGING_VERSION=26.4
   pytest_dir="$deps/pytest"
-  stamp="$pytest_dir/.onnxruntime-$ORT_VERSION-numpy-$NUMPY_VERSION.ok"
+  stamp="$pytest_dir/.onnxruntime-$ORT_VERSION-numpy-$NUMPY_VERSION-tensorboard-$TB_VERSION.ok"
   if [ ! -f "$stamp" ]; then
-    say "installing onnxruntime==$ORT_VERSION and numpy==$NUMPY_VERSION (the ONNX export test's runtime) into $pytest_dir"
+    say "installing onnxruntime==$ORT_VERSION, numpy==$NUMPY_VERSION and tensorboard==$TB_VERSION (the tests' outside readers) into $pytest_dir"
     rm -rf "$pytest_dir"
     "$PY" -m pip install --quiet --disable-pip-version-check --no-deps --no-compile \
-      --target "$pytest_dir" "onnxruntime==$ORT_VERSION" "numpy==$NUMPY_VERSION"
+      --target "$pytest_dir" "onnxruntime==$ORT_VERSION" "numpy==$NUMPY_VERSION" \
+      "tensorboard==$TB_VERSION" "protobuf==$PB_VERSION" "absl-py==$ABSL_VERSION" \
+      "packaging==$PACKAGING_VERSION"
     PYTHONPATH="$pytest_dir" "$PY" -c "import onnxruntime" ||
       die "onnxruntime installed into $pytest_dir but does not import"
+    PYTHONPATH="$pytest_dir" "$PY" -c "from tensorboard.backend.event_processing import event_accumulator" ||
+      die "tensorboard installed into $pytest_dir but its event reader does not import"
     touch "$stamp"
   else
-    say "onnxruntime $ORT_VERSION already in $pytest_dir"
+    say "onnxruntime $ORT_VERSION and tensorboard $TB_VERSION already in $pytest_dir"
   fi
 fi
 

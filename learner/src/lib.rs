@@ -15,6 +15,7 @@
 //! | [`fused`] | the fused CPU backend of the update (`learner.backend`, default): D/Q steps, rewards, PPO and p(c) as passes over the networks' flat buffers, every gradient held to tch's autograd by tests |
 //! | [`objective`] | every objective term, one file each headed by its equation, and their weighted sum for every preset ([`objective::combined`], Eq. 9) |
 //! | [`eval`] | the paper's evaluation: behaviour [`eval::classifier`], NMI / ENT ([`eval::metrics`]), normalised reward; reports, Table 1 view ([`eval::table`]) and PNG figures ([`eval::plot`], [`eval::report`]) |
+//! | [`tboard`] | TensorBoard event files of a run (`tb/`): every `metrics.csv` number, the evaluations, the config and the figures |
 //! | [`runlog`] | the MCAP run log `run.mcap` (writer, truncation-tolerant reader) and [`runlog::replay`] (`ess replay`) |
 //! | [`control`] | the control plane: [`control::jobs`] (the job manager), [`control::serve`] (`ess serve`, gRPC), [`control::client`] (`ess job ...`) |
 //! | [`import`] | `ess demos import`: Minari datasets ([`import::minari`]) and NumPy `.npz` ([`import::npz`]) into the demonstration file, labels, label ratio and provenance |
@@ -43,5 +44,6 @@ pub mod presets;
 pub mod progress;
 pub mod remote;
 pub mod runlog;
+pub mod tboard;
 pub mod tensor_file;
 pub mod train;

@@ -40,6 +40,14 @@ pub mod onnx {
     include!(concat!(env!("OUT_DIR"), "/onnx.rs"));
 }
 
+/// TensorBoard's event messages (`Event`, `Summary`, `TensorProto`; vendored unchanged
+/// from tensorflow/tensorboard's `tensorboard/compat/proto`): what a run's
+/// `tb/events.out.tfevents.*` files hold.
+#[allow(missing_docs, clippy::all, clippy::pedantic)]
+pub mod tensorboard {
+    include!(concat!(env!("OUT_DIR"), "/tensorboard.rs"));
+}
+
 /// The encoded `FileDescriptorSet` of Ess's own `.proto` files (`ess.v1`): served by gRPC
 /// reflection and embedded as the schema of protobuf channels in MCAP files.
 pub const FILE_DESCRIPTOR_SET: &[u8] =

@@ -90,6 +90,29 @@ pub fn ess(args: &[&str]) -> Output {
         .expect("running ess")
 }
 
+/// Where the outside Python packages the tests check against (onnxruntime, numpy,
+/// TensorBoard's event reader) were installed: `.deps/pytest` (`scripts/bootstrap.sh
+/// --nextest`, which `make test` runs), or `$ESS_TEST_PYTHONPATH`.
+pub fn pytest_path() -> PathBuf {
+    match std::env::var_os("ESS_TEST_PYTHONPATH") {
+        Some(p) if !p.is_empty() => PathBuf::from(p),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../.deps/pytest"),
+    }
+}
+
+/// Runs the Python `script` (`python3 -c`, or `$PYTHON`) with `args`, on
+/// [`pytest_path`] only (no user site packages); returns its output.
+pub fn python(script: &str, args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(std::env::var("PYTHON").unwrap_or_else(|_| "python3".into()))
+        .arg("-c")
+        .arg(script)
+        .args(args)
+        .env("PYTHONPATH", pytest_path())
+        .env("PYTHONNOUSERSITE", "1")
+        .output()
+        .expect("python3 runs")
+}
+
 /// Settings that make a training run take seconds: for smoke tests only.
 pub const SMOKE: &[&str] = &[
     "--set",

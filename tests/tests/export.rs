@@ -4,10 +4,9 @@
 //! `.deps/pytest` (`scripts/bootstrap.sh --nextest`, which `make test` runs), or from
 //! `$ESS_TEST_PYTHONPATH`; `ess` itself never calls Python.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
-use ess_tests::{SMOKE, ess};
+use ess_tests::{SMOKE, ess, pytest_path, python};
 use serde_json::{Value, json};
 
 /// Runs the model at `model` in onnxruntime on `inputs` (row-major f32 arrays with their
@@ -28,14 +27,6 @@ out = s.run(None, arrays)[0]
 json.dump({"version": ort.__version__, "shape": list(out.shape), "data": out.astype(np.float64).ravel().tolist()}, sys.stdout)
 "#;
 
-/// Where onnxruntime was installed for the tests.
-fn onnxruntime_path() -> PathBuf {
-    match std::env::var_os("ESS_TEST_PYTHONPATH") {
-        Some(p) if !p.is_empty() => PathBuf::from(p),
-        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../.deps/pytest"),
-    }
-}
-
 fn onnxruntime_run(model: &Path, inputs: &[(&[f32], [usize; 2])], dir: &Path) -> (Vec<f32>, Value) {
     let feeds: Vec<Value> = inputs
         .iter()
@@ -43,16 +34,11 @@ fn onnxruntime_run(model: &Path, inputs: &[(&[f32], [usize; 2])], dir: &Path) ->
         .collect();
     let feeds_path = dir.join("feeds.json");
     std::fs::write(&feeds_path, serde_json::to_vec(&feeds).unwrap()).unwrap();
-    let pythonpath = onnxruntime_path();
-    let out = Command::new(std::env::var("PYTHON").unwrap_or_else(|_| "python3".into()))
-        .arg("-c")
-        .arg(RUN_IN_ONNXRUNTIME)
-        .arg(model)
-        .arg(&feeds_path)
-        .env("PYTHONPATH", &pythonpath)
-        .env("PYTHONNOUSERSITE", "1")
-        .output()
-        .expect("python3 runs");
+    let pythonpath = pytest_path();
+    let out = python(
+        RUN_IN_ONNXRUNTIME,
+        &[model.as_os_str(), feeds_path.as_os_str()],
+    );
     assert!(
         out.status.success(),
         "onnxruntime (PYTHONPATH {}; `bash scripts/bootstrap.sh --nextest` installs it) failed: {}",

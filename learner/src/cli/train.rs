@@ -276,7 +276,7 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         ""
     };
     println!(
-        "outputs            {}/{{summary.json,metrics.csv,config.toml,run.mcap,{traj}curves.png,checkpoints/}}",
+        "outputs            {}/{{summary.json,metrics.csv,config.toml,run.mcap,{traj}curves.png,checkpoints/,tb/}}",
         out.display()
     );
     Ok(())

@@ -125,6 +125,8 @@ pub struct Trainer<'c> {
     /// Finished on every way out (drop), see [`crate::runlog`].
     runlog: RunLog,
     csv: BufWriter<std::fs::File>,
+    /// TensorBoard's view of `metrics.csv` and the evaluations ([`crate::tboard`]).
+    board: crate::tboard::Board,
     started: Instant,
     /// When [`Trainer::train`] started its first iteration in this process.
     train_started: Instant,
@@ -217,6 +219,7 @@ impl Trainer<'_> {
                 let (r, episodes) =
                     self.evaluate(it, run.eval_episodes_periodic, run.seed ^ 0xE7A1)?;
                 self.runlog.eval_episodes(it, false, &episodes)?;
+                self.board.evaluation(self.st.env_steps, &r);
                 self.st
                     .curve
                     .push((self.st.env_steps, r.nmi, r.ent, r.normalized_reward));
@@ -313,6 +316,10 @@ impl Trainer<'_> {
         self.runlog.iteration(&log)?;
         if let Some(done) = self.st.pending.replace(log) {
             records::write_csv_row(&mut self.csv, &done)?;
+            self.board.row(&done);
+        }
+        if let Some(note) = self.board.failed() {
+            progress.message(&note);
         }
         Ok(())
     }
@@ -382,6 +389,8 @@ impl Trainer<'_> {
         last.normalized_reward = Some(result.normalized_reward);
         records::write_csv_row(&mut self.csv, &last)?;
         self.csv.flush()?;
+        self.board.row(&last);
+        self.board.evaluation(self.st.env_steps, &result);
         self.runlog.iteration(&last)?;
         let (cfg, k) = (self.cfg, self.dims.codes);
         if self.spec.name == "traj2d" {
@@ -394,6 +403,12 @@ impl Trainer<'_> {
             .push((steps, result.nmi, result.ent, result.normalized_reward));
         let curves = self.out.join("curves.png");
         crate::eval::report::plot_curves(&curves, &cfg.method.name, &self.st.curve)?;
+        for png in ["trajectories.png", "curves.png"] {
+            self.board.figure(steps, &self.out.join(png));
+        }
+        if let Some(note) = self.board.failed() {
+            progress.message(&note);
+        }
         let prior = self.nets.ppo.prior_probs();
         let demo_mode_freq = self.expert.mode_frequencies(k);
         let summary = Summary {

@@ -518,6 +518,13 @@ impl<'c> Trainer<'c> {
         };
         let fused = fused_backend(cfg, &nets, progress)?;
         let (runlog, csv) = open_logs(cfg, out, &st, resuming)?;
+        let mut board = crate::tboard::Board::open(out, resuming.then_some(st.env_steps));
+        if !resuming {
+            board.config(&cfg.to_toml());
+        }
+        if let Some(note) = board.failed() {
+            progress.message(&note);
+        }
         Ok(Self {
             cfg,
             out: out.to_owned(),
@@ -537,6 +544,7 @@ impl<'c> Trainer<'c> {
             st,
             runlog,
             csv,
+            board,
             started,
             train_started: Instant::now(),
         })
