@@ -1,5 +1,6 @@
-//! Compiles `proto/ess/v1/*.proto`, ONNX's `proto/onnx/onnx.proto` and TensorBoard's
-//! event messages (`proto/tensorboard/compat/proto/event.proto`) with the pure-Rust
+//! Compiles `proto/ess/v1/*.proto`, ONNX's `proto/onnx/onnx.proto`, TensorBoard's
+//! event messages (`proto/tensorboard/compat/proto/event.proto`) and Foxglove's
+//! `SceneUpdate` / `FrameTransforms` (`proto/foxglove/`) with the pure-Rust
 //! `protox` (no `protoc` needed):
 //! prost messages always; tonic client and server stubs with the `grpc` feature. The
 //! encoded `FileDescriptorSet` is kept for gRPC reflection and for the protobuf
@@ -47,5 +48,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_server(false)
         .build_client(false)
         .compile_fds(tb)?;
+    // Foxglove's published schemas (vendored from foxglove/foxglove-sdk) for the run
+    // log's 3D scene; their descriptor set is the MCAP channels' schema data.
+    let fox = protox::compile(
+        [
+            root.join("foxglove/SceneUpdate.proto"),
+            root.join("foxglove/FrameTransforms.proto"),
+        ],
+        [&root],
+    )?;
+    std::fs::write(
+        out.join("foxglove_descriptor.bin"),
+        prost::Message::encode_to_vec(&fox),
+    )?;
+    tonic_prost_build::configure()
+        .build_server(false)
+        .build_client(false)
+        .compile_fds(fox)?;
     Ok(())
 }

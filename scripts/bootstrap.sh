@@ -9,9 +9,11 @@
 #   - with --nextest (what `make test` passes): cargo-nextest (crates.io, `cargo
 #     install --locked`, into ~/.cargo/bin) when `cargo nextest` is missing, and a check
 #     that the `openssl` command the TLS tests make certificates with is there; and
-#     onnxruntime + numpy + tensorboard from PyPI into .deps/pytest, the outside
-#     readers the tests check Ess's files with (the ONNX export runs in onnxruntime, the
-#     event files are read by TensorBoard's loader; tests only: `ess` never calls Python).
+#     onnxruntime + numpy + tensorboard + mcap + foxglove-schemas-protobuf from PyPI
+#     into .deps/pytest, the outside readers the tests check Ess's files with (the ONNX
+#     export runs in onnxruntime, the event files are read by TensorBoard's loader, the
+#     run log's 3D scene by mcap's reader and Foxglove's classes; tests only: `ess`
+#     never calls Python).
 #   - with --fuzz (what `make fuzz` passes): cargo-fuzz (crates.io) when missing, and a
 #     check that a nightly toolchain is installed (libFuzzer's instrumentation needs
 #     it; `make test`'s short fuzz run does not).
@@ -135,19 +137,28 @@ if [ "$with_nextest" = 1 ]; then
   PB_VERSION=7.36.2
   ABSL_VERSION=2.5.1
   PACKAGING_VERSION=26.4
+  # The upstream MCAP reader and Foxglove's schema classes for the run-log scene test.
+  MCAP_VERSION=1.6.0
+  FOXGLOVE_SCHEMAS_VERSION=0.4.0
+  ZSTANDARD_VERSION=0.25.0
+  LZ4_VERSION=4.4.5
   pytest_dir="$deps/pytest"
-  stamp="$pytest_dir/.onnxruntime-$ORT_VERSION-numpy-$NUMPY_VERSION-tensorboard-$TB_VERSION.ok"
+  stamp="$pytest_dir/.onnxruntime-$ORT_VERSION-numpy-$NUMPY_VERSION-tensorboard-$TB_VERSION-mcap-$MCAP_VERSION.ok"
   if [ ! -f "$stamp" ]; then
-    say "installing onnxruntime==$ORT_VERSION, numpy==$NUMPY_VERSION and tensorboard==$TB_VERSION (the tests' outside readers) into $pytest_dir"
+    say "installing onnxruntime==$ORT_VERSION, numpy==$NUMPY_VERSION tensorboard==$TB_VERSION and mcap==$MCAP_VERSION (the tests' outside readers) into $pytest_dir"
     rm -rf "$pytest_dir"
     "$PY" -m pip install --quiet --disable-pip-version-check --no-deps --no-compile \
       --target "$pytest_dir" "onnxruntime==$ORT_VERSION" "numpy==$NUMPY_VERSION" \
       "tensorboard==$TB_VERSION" "protobuf==$PB_VERSION" "absl-py==$ABSL_VERSION" \
-      "packaging==$PACKAGING_VERSION"
+      "packaging==$PACKAGING_VERSION" "mcap==$MCAP_VERSION" \
+      "foxglove-schemas-protobuf==$FOXGLOVE_SCHEMAS_VERSION" \
+      "zstandard==$ZSTANDARD_VERSION" "lz4==$LZ4_VERSION"
     PYTHONPATH="$pytest_dir" "$PY" -c "import onnxruntime" ||
       die "onnxruntime installed into $pytest_dir but does not import"
     PYTHONPATH="$pytest_dir" "$PY" -c "from tensorboard.backend.event_processing import event_accumulator" ||
       die "tensorboard installed into $pytest_dir but its event reader does not import"
+    PYTHONPATH="$pytest_dir" "$PY" -c "import mcap.reader, foxglove_schemas_protobuf.SceneUpdate_pb2" ||
+      die "mcap / foxglove-schemas-protobuf installed into $pytest_dir but do not import"
     touch "$stamp"
   else
     say "onnxruntime $ORT_VERSION and tensorboard $TB_VERSION already in $pytest_dir"

@@ -210,6 +210,18 @@ pub trait Env: Send {
         None
     }
 
+    /// The env's bodies and their geoms as a 3D viewer draws them (Foxglove through the
+    /// run log); `None` for an env without a body model (Traj2D).
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        None
+    }
+
+    /// Each body's world pose now (after `reset`, `step` or `set_state`), in the order
+    /// of [`Env::scene`]'s bodies; empty where `scene` is `None`.
+    fn body_poses(&self) -> Vec<crate::scene::Pose> {
+        Vec::new()
+    }
+
     /// The env's complete state as a flat vector: the simulator state and every field
     /// the next `step`, `mode_rewards` and `task_rewards` read (episode step count, done
     /// flag, last action, ...). [`Env::set_state`] with it makes the env continue

@@ -492,6 +492,14 @@ impl Env for ExpertEnv {
         self.env.forward_velocity()
     }
 
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        self.env.scene()
+    }
+
+    fn body_poses(&self) -> Vec<crate::scene::Pose> {
+        self.env.body_poses()
+    }
+
     /// The wrapped env's state, then the last observation (what the experts act on).
     fn state(&self) -> Vec<f64> {
         let mut s = self.env.state();

@@ -486,6 +486,14 @@ impl Env for Humanoid {
         Some(self.terms.x_velocity)
     }
 
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        Some(crate::scene::mujoco_scene(&self.sim.data, self.sim.dt()))
+    }
+
+    fn body_poses(&self) -> Vec<crate::scene::Pose> {
+        crate::scene::mujoco_poses(&self.sim.data)
+    }
+
     /// `[MuJoCo integration state, steps, started, done, last step's reward terms,
     /// centre-of-mass x]`.
     fn state(&self) -> Vec<f64> {

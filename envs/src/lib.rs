@@ -38,6 +38,7 @@ mod mujoco;
 pub mod pusher;
 pub mod reacher;
 pub mod read;
+pub mod scene;
 pub mod task;
 pub mod traj2d;
 pub mod walker2d;

@@ -433,6 +433,15 @@ impl Env for Reacher {
         })
     }
 
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        let dt = self.data.model().opt().timestep * self.cfg.frame_skip as f64;
+        Some(crate::scene::mujoco_scene(&self.data, dt))
+    }
+
+    fn body_poses(&self) -> Vec<crate::scene::Pose> {
+        crate::scene::mujoco_poses(&self.data)
+    }
+
     /// `[MuJoCo integration state, last action (2), steps, started, done]`.
     fn state(&self) -> Vec<f64> {
         mujoco::arm_state(

@@ -307,6 +307,14 @@ impl Env for Walker2d {
         Some(self.terms.x_velocity)
     }
 
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        Some(crate::scene::mujoco_scene(&self.sim.data, self.sim.dt()))
+    }
+
+    fn body_poses(&self) -> Vec<crate::scene::Pose> {
+        crate::scene::mujoco_poses(&self.sim.data)
+    }
+
     /// `[MuJoCo integration state, steps, started, done, last step's reward terms]`.
     fn state(&self) -> Vec<f64> {
         let mut w = StateWriter::default();

@@ -48,6 +48,19 @@ pub mod tensorboard {
     include!(concat!(env!("OUT_DIR"), "/tensorboard.rs"));
 }
 
+/// Foxglove's published schemas `foxglove.SceneUpdate` and `foxglove.FrameTransforms`
+/// with what they import (vendored unchanged from foxglove/foxglove-sdk,
+/// `schemas/proto/foxglove`): the run log's 3D scene of the robot.
+#[allow(missing_docs, clippy::all, clippy::pedantic)]
+pub mod foxglove {
+    include!(concat!(env!("OUT_DIR"), "/foxglove.rs"));
+}
+
+/// The encoded `FileDescriptorSet` of [`foxglove`]'s files (and the
+/// `google.protobuf` ones they import): the schema data of the run log's scene channels.
+pub const FOXGLOVE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/foxglove_descriptor.bin"));
+
 /// The encoded `FileDescriptorSet` of Ess's own `.proto` files (`ess.v1`): served by gRPC
 /// reflection and embedded as the schema of protobuf channels in MCAP files.
 pub const FILE_DESCRIPTOR_SET: &[u8] =

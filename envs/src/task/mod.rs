@@ -280,6 +280,14 @@ impl Env for TaskEnv {
         !self.modes.is_empty()
     }
 
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        Some(crate::scene::mujoco_scene(&self.sim.data, self.sim.dt()))
+    }
+
+    fn body_poses(&self) -> Vec<crate::scene::Pose> {
+        crate::scene::mujoco_poses(&self.sim.data)
+    }
+
     /// `[MuJoCo integration state, steps, started, done, last step's sum(ctrl^2)]`.
     fn state(&self) -> Vec<f64> {
         let mut w = StateWriter::default();

@@ -13,8 +13,10 @@
 //! | `/eval/episode` | `ess.v1.EvalEpisode` | one per evaluation episode (final evaluation; periodic ones with `run.log_periodic_evals`): code, eps, reset seed, start state, length, returns |
 //! | `/eval/step` | `ess.v1.EvalStep` | each step of that episode: obs, action, c, eps, mode rewards, next obs, the env state after the step |
 //! | `/train/chunk` | `ess.v1.TrainingChunk` | every `run.log_chunks_every` iterations, the first `run.log_chunk_steps` steps of each actor's chunk with the policy reward |
+//! | `/scene`, `/tf` | `foxglove.SceneUpdate`, `foxglove.FrameTransforms` | the logged evaluation episodes of a MuJoCo env as a moving robot ([`scene`]) |
 //!
-//! Log times are wall-clock nanoseconds since the Unix epoch, never decreasing.
+//! Log times are wall-clock nanoseconds since the Unix epoch, never decreasing; an
+//! evaluation episode's steps are stamped the env's step duration apart from its start.
 //!
 //! Files are zstd-chunked with message indexes, chunk indexes, statistics and a summary
 //! section written by [`RunLog::finish`] (also run on drop, so error paths and Ctrl-C /
@@ -30,9 +32,11 @@
 //! uninterrupted one.
 
 pub mod replay;
+pub mod scene;
 
 use crate::train::IterationLog;
 use ess_actor::EvalEpisode;
+use ess_envs::scene::Scene;
 use ess_proto::config::LatentPrior;
 use ess_proto::{CheckedConfig, Chunk, FILE_DESCRIPTOR_SET, pb};
 use prost::Message as _;
@@ -224,6 +228,8 @@ pub struct RunLog {
     writer: Option<McapWriter>,
     /// Channel id of each entry of [`TOPICS`].
     channels: [u16; 5],
+    /// Channel id of each entry of [`scene::SCENE_TOPICS`].
+    scene_channels: [u16; 2],
     sequence: u32,
     last_time: u64,
     next_episode: u32,
@@ -281,10 +287,19 @@ impl RunLog {
                 .add_channel(schema_id, topic, PROTOBUF, &BTreeMap::new())
                 .map_err(mcap_err)?;
         }
+        let mut scene_channels = [0u16; 2];
+        for (ch, (topic, schema)) in scene_channels.iter_mut().zip(scene::SCENE_TOPICS) {
+            let fds = ess_proto::FOXGLOVE_DESCRIPTOR_SET;
+            let schema_id = writer.add_schema(schema, PROTOBUF, fds).map_err(mcap_err)?;
+            *ch = writer
+                .add_channel(schema_id, topic, PROTOBUF, &BTreeMap::new())
+                .map_err(mcap_err)?;
+        }
         Ok(Self {
             path: path.to_path_buf(),
             writer: Some(writer),
             channels,
+            scene_channels,
             sequence: 0,
             last_time: 0,
             next_episode: 0,
@@ -370,33 +385,39 @@ impl RunLog {
 
     /// Writes `rec` stamped with the current time.
     pub fn record(&mut self, rec: &Record) -> Result<(), RunLogError> {
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos() as u64)
-            .unwrap_or(0);
-        self.write_at(now, rec)
+        self.write_at(now_ns(), rec)
     }
 
     /// Writes `rec` with log time `log_time` (ns since the Unix epoch; raised to the
     /// last one written, so times never decrease).
     pub fn write_at(&mut self, log_time: u64, rec: &Record) -> Result<(), RunLogError> {
+        self.write_raw(self.channels[rec.kind()], log_time, &rec.encode())
+    }
+
+    /// Writes encoded `data` on channel `channel_id` at `log_time` (raised to the last
+    /// time written).
+    fn write_raw(
+        &mut self,
+        channel_id: u16,
+        log_time: u64,
+        data: &[u8],
+    ) -> Result<(), RunLogError> {
         let t = log_time.max(self.last_time);
         self.last_time = t;
         self.sequence = self.sequence.wrapping_add(1);
         let header = mcap::records::MessageHeader {
-            channel_id: self.channels[rec.kind()],
+            channel_id,
             sequence: self.sequence,
             log_time: t,
             publish_time: t,
         };
-        let data = rec.encode();
         let path = &self.path;
         let w = self.writer.as_mut().ok_or_else(|| RunLogError::Io {
             path: path.clone(),
             what: "writing after finish",
             source: std::io::Error::other("the run log is closed"),
         })?;
-        w.write_to_known_channel(&header, &data)
+        w.write_to_known_channel(&header, data)
             .map_err(|source| RunLogError::Mcap {
                 path: path.clone(),
                 source: Box::new(source),
@@ -421,26 +442,66 @@ impl RunLog {
         self.flush()
     }
 
-    /// Logs evaluation episodes of the policy of `iteration` (`final_eval`: the final
-    /// evaluation, always logged; periodic ones only with `run.log_periodic_evals`) on
-    /// `/eval/episode` and `/eval/step`, and flushes.
+    /// Whether evaluation episodes of this kind are logged (`final_eval`: always;
+    /// periodic ones only with `run.log_periodic_evals`).
+    pub fn logs_episodes(&self, final_eval: bool) -> bool {
+        final_eval || self.options.periodic_evals
+    }
+
+    /// Logs evaluation episodes of the policy of `iteration` (when
+    /// [`RunLog::logs_episodes`]) on `/eval/episode` and `/eval/step`, with each
+    /// episode's robot on `/scene` and `/tf` when `scene` gives the env's bodies and the
+    /// episodes' poses (one [`scene::EpisodePoses`] per episode); flushes.
     pub fn eval_episodes(
         &mut self,
         iteration: usize,
         final_eval: bool,
         episodes: &[EvalEpisode],
+        scene: Option<(&Scene, &[scene::EpisodePoses])>,
     ) -> Result<(), RunLogError> {
-        if !final_eval && !self.options.periodic_evals {
+        if !self.logs_episodes(final_eval) {
             return Ok(());
         }
-        for ep in episodes {
+        for (i, ep) in episodes.iter().enumerate() {
             let id = self.next_episode;
             self.next_episode += 1;
-            for rec in episode_records(id, iteration, final_eval, ep, &self.options) {
-                self.record(&rec)?;
+            let t0 = now_ns().max(self.last_time.saturating_add(1));
+            let drawn = scene.and_then(|(s, p)| Some((s, p.get(i)?)));
+            // Steps `dt` apart, so playback runs at the simulation's speed.
+            let dt = drawn.map_or(0, |(s, _)| (s.dt * 1e9) as u64);
+            // Each step's record and the robot's poses after it at one time.
+            let records = episode_records(id, iteration, final_eval, ep, &self.options);
+            for (k, rec) in records.iter().enumerate() {
+                let t = t0 + dt * k as u64;
+                self.write_at(t, rec)?;
+                if let Some((s, poses)) = drawn {
+                    self.scene_at(s, poses, k, t, (id, ep.code))?;
+                }
             }
         }
         self.flush()
+    }
+
+    /// An episode's robot at its `k`-th record (0: the start, with the `/scene`
+    /// entities), time `t`.
+    fn scene_at(
+        &mut self,
+        s: &Scene,
+        poses: &scene::EpisodePoses,
+        k: usize,
+        t: u64,
+        (id, code): (u32, usize),
+    ) -> Result<(), RunLogError> {
+        let [scene_ch, tf_ch] = self.scene_channels;
+        if k == 0 {
+            let up = scene::scene_update(s, t, id, code).encode_to_vec();
+            self.write_raw(scene_ch, t, &up)?;
+        }
+        if let Some(p) = poses.0.get(k) {
+            let tf = scene::transforms(s, p, t).encode_to_vec();
+            self.write_raw(tf_ch, t, &tf)?;
+        }
+        Ok(())
     }
 
     /// Logs a sample of iteration `iteration`'s rollout `chunks` on `/train/chunk` when
@@ -494,6 +555,14 @@ impl RunLog {
             source,
         })
     }
+}
+
+/// Wall-clock nanoseconds since the Unix epoch.
+fn now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
 }
 
 /// The mcap crate's error, with the OS error its I/O variant hides ("No space left on
@@ -697,7 +766,10 @@ pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, R
         };
         let ch = &msg.channel;
         let Some(kind) = TOPICS.iter().position(|(t, _)| *t == ch.topic) else {
-            out.unknown += 1;
+            // The 3D scene is for viewers; Ess reads nothing back from it.
+            if !scene::SCENE_TOPICS.iter().any(|(t, _)| *t == ch.topic) {
+                out.unknown += 1;
+            }
             continue;
         };
         let expected = TOPICS[kind].1;
@@ -1061,6 +1133,7 @@ mod tests {
                 mode_rewards: vec![1.0],
                 ..Default::default()
             }],
+            None,
         )
         .unwrap();
         log.finish().unwrap();
@@ -1157,17 +1230,27 @@ mod tests {
                     (s.encoding.as_str(), c.message_encoding.as_str()),
                     ("protobuf", "protobuf")
                 );
-                assert_eq!(&s.data[..], FILE_DESCRIPTOR_SET);
+                let scene = scene::SCENE_TOPICS.iter().any(|(t, _)| *t == c.topic);
+                let fds = if scene {
+                    ess_proto::FOXGLOVE_DESCRIPTOR_SET
+                } else {
+                    FILE_DESCRIPTOR_SET
+                };
+                assert_eq!(&s.data[..], fds, "{}", c.topic);
                 (c.topic.as_str(), s.name.as_str())
             })
             .collect();
-        for t in TOPICS {
-            assert!(topics.contains(&t), "{t:?} missing from {topics:?}");
+        for t in TOPICS.iter().chain(&scene::SCENE_TOPICS) {
+            assert!(topics.contains(t), "{t:?} missing from {topics:?}");
         }
-        // The schema names resolve in the embedded descriptor set.
+        // The schema names resolve in the embedded descriptor sets.
         let fds = prost_types_names(FILE_DESCRIPTOR_SET);
         for (_, name) in TOPICS {
             assert!(fds.contains(&name.to_string()), "{name} not in {fds:?}");
+        }
+        let fox = prost_types_names(ess_proto::FOXGLOVE_DESCRIPTOR_SET);
+        for (_, name) in scene::SCENE_TOPICS {
+            assert!(fox.contains(&name.to_string()), "{name} not in {fox:?}");
         }
     }
 

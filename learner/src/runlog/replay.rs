@@ -511,7 +511,7 @@ mod tests {
             .collect();
         let path = dir.join("run.mcap");
         let mut log = RunLog::create(&path, &cfg).unwrap();
-        log.eval_episodes(0, true, &episodes).unwrap();
+        log.eval_episodes(0, true, &episodes, None).unwrap();
         log.finish().unwrap();
         path
     }

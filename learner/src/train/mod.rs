@@ -39,7 +39,7 @@ pub use stages::Rewards;
 use crate::eval::Reference;
 use crate::runlog::RunLog;
 use anyhow::{Context, Result, anyhow};
-use ess_actor::{LatentSpec, PolicyWeights, RolloutSource};
+use ess_actor::{EvalEpisode, LatentSpec, PolicyWeights, RolloutSource};
 use ess_envs::{Demos, EnvSpec};
 use ess_proto::CheckedConfig;
 use ess_proto::config::Pipeline;
@@ -218,7 +218,7 @@ impl Trainer<'_> {
             if run.eval_every > 0 && it.is_multiple_of(run.eval_every) && it != run.iterations {
                 let (r, episodes) =
                     self.evaluate(it, run.eval_episodes_periodic, run.seed ^ 0xE7A1)?;
-                self.runlog.eval_episodes(it, false, &episodes)?;
+                self.log_episodes(it, false, &episodes)?;
                 self.board.evaluation(self.st.env_steps, &r);
                 self.st
                     .curve
@@ -293,6 +293,35 @@ impl Trainer<'_> {
             before,
             weights,
         });
+        Ok(())
+    }
+
+    /// Logs evaluation episodes in the run log, with the robot's poses replayed from
+    /// their recorded states on the evaluation env when it has a body model (the 3D
+    /// scene, [`crate::runlog::scene`]). A state the env refuses leaves the scene out
+    /// (with a warning), never the episodes.
+    fn log_episodes(
+        &mut self,
+        it: usize,
+        final_eval: bool,
+        episodes: &[EvalEpisode],
+    ) -> Result<()> {
+        if !self.runlog.logs_episodes(final_eval) {
+            return Ok(());
+        }
+        let scene = self.eval_env.scene();
+        let env = self.eval_env.as_mut();
+        let poses = match scene {
+            Some(_) => episodes
+                .iter()
+                .map(|ep| crate::runlog::scene::episode_poses(env, ep))
+                .collect::<Result<Vec<_>, _>>()
+                .inspect_err(|e| tracing::warn!("the run log's 3D scene is left out: {e}"))
+                .ok(),
+            None => None,
+        };
+        let drawn = scene.as_ref().zip(poses.as_deref());
+        self.runlog.eval_episodes(it, final_eval, episodes, drawn)?;
         Ok(())
     }
 
@@ -376,7 +405,7 @@ impl Trainer<'_> {
         let done = self.st.iters_done;
         let (result, episodes) =
             self.evaluate(done, self.cfg.run.eval_episodes, self.cfg.run.seed ^ 0xF1AA)?;
-        self.runlog.eval_episodes(done, true, &episodes)?;
+        self.log_episodes(done, true, &episodes)?;
         // The final evaluation completes the last iteration's row (no iteration ran: a
         // row of iteration 0 for the untrained policy).
         let mut last = self.st.pending.take().unwrap_or_else(|| IterationLog {
