@@ -8,7 +8,9 @@
 #     HDF5 from source with it (for `ess demos import` of Minari datasets).
 #   - with --nextest (what `make test` passes): cargo-nextest (crates.io, `cargo
 #     install --locked`, into ~/.cargo/bin) when `cargo nextest` is missing, and a check
-#     that the `openssl` command the TLS tests make certificates with is there; and
+#     that the `openssl` command the TLS tests make certificates with is there;
+#     Debian's chromium and chromium-driver (apt; root or sudo) for the dashboard's
+#     headless-browser test; and
 #     onnxruntime + numpy + tensorboard + mcap + foxglove-schemas-protobuf from PyPI
 #     into .deps/pytest, the outside readers the tests check Ess's files with (the ONNX
 #     export runs in onnxruntime, the event files are read by TensorBoard's loader, the
@@ -130,6 +132,17 @@ if [ "$with_nextest" = 1 ]; then
   fi
   command -v openssl >/dev/null 2>&1 ||
     die "the TLS tests need the openssl command (Debian: apt-get install openssl)"
+  # The dashboard test drives a real headless browser over WebDriver.
+  if command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; then
+    say "chromium and chromedriver already installed"
+  else
+    say "installing chromium and chromium-driver (apt; the dashboard test's browser)"
+    sudo=""
+    [ "$(id -u)" = 0 ] || sudo="sudo"
+    $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+      chromium chromium-driver >/dev/null ||
+      die "could not install chromium and chromium-driver (Debian packages; root or sudo needed)"
+  fi
   ORT_VERSION=1.23.2
   NUMPY_VERSION=2.3.5
   # TensorBoard's own event reader for the event-file test, with what it imports.

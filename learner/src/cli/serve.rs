@@ -37,6 +37,44 @@ pub struct ServeArgs {
     /// Seconds a shutting-down server waits for its stopped jobs before killing them.
     #[arg(long, default_value_t = 600.0)]
     stop_grace_s: f64,
+    /// Also serve the browser dashboard on this address (IP:PORT; port 0 picks one),
+    /// printed as the second line of stdout: the jobs, their live curves, cancel,
+    /// requeue and submit. Same token (a login sets a cookie) and TLS as gRPC.
+    #[arg(long)]
+    dashboard: Option<String>,
+}
+
+/// `--dashboard`'s listener, bound, with the server's TLS when it has TLS; the same
+/// rule as `--listen` off loopback.
+fn dashboard_listener(
+    a: &ServeArgs,
+    token: bool,
+) -> Result<Option<ess_learner::control::serve::DashboardListener>> {
+    let Some(text) = &a.dashboard else {
+        return Ok(None);
+    };
+    let addr: std::net::SocketAddr = text.parse().map_err(|e| {
+        input_err(format!(
+            "--dashboard `{text}`: expected IP:PORT (e.g. 127.0.0.1:8080): {e}"
+        ))
+    })?;
+    let tls = ess_learner::control::tls::rustls_server(
+        a.tls_cert.as_deref(),
+        a.tls_key.as_deref(),
+        a.tls_client_ca.as_deref(),
+    )
+    .map_err(input_err)?;
+    if !addr.ip().is_loopback() && (tls.is_none() || !(token || a.tls_client_ca.is_some())) {
+        return Err(input_err(format!(
+            "--dashboard {addr} is reachable from other machines: give --tls-cert, --tls-key and --token-file (or --tls-client-ca)"
+        )));
+    }
+    let listener = std::net::TcpListener::bind(addr)
+        .with_context(|| format!("cannot listen on {addr} (--dashboard)"))?;
+    Ok(Some(ess_learner::control::serve::DashboardListener {
+        listener,
+        tls,
+    }))
 }
 
 /// The server's TLS settings, checked as tonic will use them (a key that does not match
@@ -123,10 +161,19 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
         .await
         .with_context(|| format!("cannot listen on {addr}"))?;
     let bound = listener.local_addr().context("reading the bound address")?;
+    let dashboard = dashboard_listener(&a, token.is_some())?;
     {
         use std::io::Write;
         let mut out = std::io::stdout().lock();
         writeln!(out, "listening on {bound}")?;
+        if let Some(d) = &dashboard {
+            let scheme = if d.tls.is_some() { "https" } else { "http" };
+            let at = d
+                .listener
+                .local_addr()
+                .context("reading the dashboard's address")?;
+            writeln!(out, "dashboard on {scheme}://{at}/")?;
+        }
         out.flush()?;
     }
     eprintln!(
@@ -144,6 +191,7 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
         },
         token,
         tls,
+        dashboard,
     };
     ess_learner::control::serve::serve(listener, cfg, shutdown_signal()).await
 }

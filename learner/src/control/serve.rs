@@ -10,6 +10,10 @@
 //! - over TLS when [`ServeConfig::tls`] is set ([`crate::control::tls`]); a client
 //!   speaking plain HTTP/2 to it fails at the handshake.
 //!
+//! - with [`ServeConfig::dashboard`], the browser dashboard
+//!   ([`crate::control::dashboard`]) on a listener of its own, over the same manager
+//!   and token, over TLS when the server has TLS.
+//!
 //! When the shutdown future resolves, health turns NOT_SERVING, running jobs are stopped
 //! gracefully ([`Manager::shutdown`]) and the server returns.
 
@@ -26,7 +30,7 @@ use tonic::{Request, Response, Status};
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:50551";
 
 /// What [`serve`] needs beyond its listener.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct ServeConfig {
     /// How jobs run.
     pub manager: ManagerConfig,
@@ -34,6 +38,18 @@ pub struct ServeConfig {
     pub token: Option<String>,
     /// TLS (identity, optional client CA); `None`: plain HTTP/2.
     pub tls: Option<tonic::transport::ServerTlsConfig>,
+    /// The dashboard's listener and, when the server has TLS, its TLS settings (the
+    /// same certificate and key); `None`: no dashboard.
+    pub dashboard: Option<DashboardListener>,
+}
+
+/// Where the dashboard listens.
+#[derive(Debug)]
+pub struct DashboardListener {
+    /// The bound listener.
+    pub listener: std::net::TcpListener,
+    /// TLS for it (the server's certificate and key); `None`: plain HTTP.
+    pub tls: Option<Arc<tokio_rustls::rustls::ServerConfig>>,
 }
 
 /// The JobService implementation: a thin layer over the [`Manager`].
@@ -171,10 +187,28 @@ pub async fn serve(
         },
         Auth::new(cfg.token.as_deref()),
     );
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    if let Some(d) = cfg.dashboard {
+        let state = crate::control::dashboard::Dashboard::new(
+            manager.clone(),
+            cfg.token.as_deref(),
+            d.tls.is_some(),
+        );
+        let app = crate::control::dashboard::router(state);
+        d.listener
+            .set_nonblocking(true)
+            .context("dashboard listener")?;
+        let listener =
+            tokio::net::TcpListener::from_std(d.listener).context("dashboard listener")?;
+        tokio::spawn(crate::control::dashboard::serve(
+            listener, app, d.tls, stop_rx,
+        ));
+    }
     let signal = {
         let manager = manager.clone();
         async move {
             shutdown.await;
+            let _ = stop_tx.send(true);
             tracing::info!("shutting down");
             health.set_not_serving::<JobServiceServer<JobSvc>>().await;
             manager.shutdown().await;

@@ -140,6 +140,52 @@ pub fn server_config(
     Ok(Some(cfg))
 }
 
+/// The same server identity (and client CA) as [`server_config`], as the rustls
+/// configuration the dashboard's HTTPS listener takes; `None` without a certificate.
+/// Errors name the file, as there.
+pub fn rustls_server(
+    cert: Option<&Path>,
+    key: Option<&Path>,
+    client_ca: Option<&Path>,
+) -> Result<Option<std::sync::Arc<tokio_rustls::rustls::ServerConfig>>, TlsError> {
+    use tokio_rustls::rustls;
+    let (Some(cert), Some(key)) = (cert, key) else {
+        return Ok(None);
+    };
+    let chain: Vec<CertificateDer<'static>> =
+        CertificateDer::pem_slice_iter(&certificates("--tls-cert", cert)?)
+            .collect::<Result<_, _>>()
+            .map_err(|e| pem_err("--tls-cert", cert, &e.to_string()))?;
+    let der = PrivateKeyDer::from_pem_slice(&private_key("--tls-key", key)?)
+        .map_err(|e| pem_err("--tls-key", key, &e.to_string()))?;
+    let provider = std::sync::Arc::new(rustls::crypto::ring::default_provider());
+    let builder = rustls::ServerConfig::builder_with_provider(provider.clone())
+        .with_safe_default_protocol_versions()
+        .map_err(|e| pem_err("--tls-cert", cert, &e.to_string()))?;
+    let builder = match client_ca {
+        Some(ca) => {
+            let mut roots = rustls::RootCertStore::empty();
+            for c in CertificateDer::pem_slice_iter(&certificates("--tls-client-ca", ca)?) {
+                let c = c.map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
+                roots
+                    .add(c)
+                    .map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
+            }
+            let verifier =
+                rustls::server::WebPkiClientVerifier::builder_with_provider(roots.into(), provider)
+                    .build()
+                    .map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
+            builder.with_client_cert_verifier(verifier)
+        }
+        None => builder.with_no_client_auth(),
+    };
+    let mut cfg = builder
+        .with_single_cert(chain, der)
+        .map_err(|e| pem_err("--tls-key", key, &format!("does not serve --tls-cert: {e}")))?;
+    cfg.alpn_protocols = vec![b"h2".to_vec(), b"http/1.1".to_vec()];
+    Ok(Some(std::sync::Arc::new(cfg)))
+}
+
 /// The client's TLS: the CA that signed the server's certificate (else the system's
 /// roots) and the client's own certificate for mutual TLS.
 pub fn client_config(
