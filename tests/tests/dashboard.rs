@@ -83,8 +83,6 @@ fn chromedriver() -> (Killed, String) {
 }
 
 async fn browser(driver: &str, insecure_certs: bool) -> Client {
-    // fantoccini's connector is rustls; ring is the provider the rest of Ess uses.
-    let _ = rustls::crypto::ring::default_provider().install_default();
     let mut caps = serde_json::Map::new();
     let args = [
         "--headless=new",
@@ -95,8 +93,8 @@ async fn browser(driver: &str, insecure_certs: bool) -> Client {
     ];
     caps.insert("goog:chromeOptions".into(), json!({ "args": args }));
     caps.insert("acceptInsecureCerts".into(), json!(insecure_certs));
-    ClientBuilder::rustls()
-        .expect("rustls connector")
+    let http = hyper_util::client::legacy::connect::HttpConnector::new();
+    ClientBuilder::new(http)
         .capabilities(caps)
         .connect(driver)
         .await

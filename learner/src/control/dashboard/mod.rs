@@ -282,15 +282,24 @@ async fn metrics(
     axum::Json(metrics_json(&text)).into_response()
 }
 
+/// A job action for a logged-in caller: the job after it, or the manager's refusal.
+fn job_action(
+    d: &Dashboard,
+    headers: &HeaderMap,
+    act: impl FnOnce(&Arc<Manager>) -> Result<pb::Job, JobError>,
+) -> Response {
+    guarded(d, headers, || match act(&d.manager) {
+        Ok(j) => axum::Json(job_json(&j, now_ms())).into_response(),
+        Err(e) => job_error(e),
+    })
+}
+
 async fn cancel(
     State(d): State<Arc<Dashboard>>,
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
-    guarded(&d, &headers, || match d.manager.stop(&id) {
-        Ok(j) => axum::Json(job_json(&j, now_ms())).into_response(),
-        Err(e) => job_error(e),
-    })
+    job_action(&d, &headers, |m| m.stop(&id))
 }
 
 async fn requeue(
@@ -298,10 +307,7 @@ async fn requeue(
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
-    guarded(&d, &headers, || match d.manager.resume(&id) {
-        Ok(j) => axum::Json(job_json(&j, now_ms())).into_response(),
-        Err(e) => job_error(e),
-    })
+    job_action(&d, &headers, |m| m.resume(&id))
 }
 
 /// A submitted spec from the page's JSON.
