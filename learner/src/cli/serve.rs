@@ -48,6 +48,7 @@ pub struct ServeArgs {
 /// rule as `--listen` off loopback.
 fn dashboard_listener(
     a: &ServeArgs,
+    server_tls: Option<&ess_learner::control::tls::ServerTls>,
     token: bool,
 ) -> Result<Option<ess_learner::control::serve::DashboardListener>> {
     let Some(text) = &a.dashboard else {
@@ -58,12 +59,10 @@ fn dashboard_listener(
             "--dashboard `{text}`: expected IP:PORT (e.g. 127.0.0.1:8080): {e}"
         ))
     })?;
-    let tls = ess_learner::control::tls::rustls_server(
-        a.tls_cert.as_deref(),
-        a.tls_key.as_deref(),
-        a.tls_client_ca.as_deref(),
-    )
-    .map_err(input_err)?;
+    let tls = server_tls
+        .map(ess_learner::control::tls::ServerTls::https)
+        .transpose()
+        .map_err(input_err)?;
     if !addr.ip().is_loopback() && (tls.is_none() || !(token || a.tls_client_ca.is_some())) {
         return Err(input_err(format!(
             "--dashboard {addr} is reachable from other machines: give --tls-cert, --tls-key and --token-file (or --tls-client-ca)"
@@ -79,7 +78,7 @@ fn dashboard_listener(
 
 /// The server's TLS settings, checked as tonic will use them (a key that does not match
 /// its certificate is refused here, naming both files, not at the first handshake).
-fn server_tls(a: &ServeArgs) -> Result<Option<tonic::transport::ServerTlsConfig>> {
+fn server_tls(a: &ServeArgs) -> Result<Option<ess_learner::control::tls::ServerTls>> {
     let tls = ess_learner::control::tls::server_config(
         a.tls_cert.as_deref(),
         a.tls_key.as_deref(),
@@ -88,7 +87,7 @@ fn server_tls(a: &ServeArgs) -> Result<Option<tonic::transport::ServerTlsConfig>
     .map_err(input_err)?;
     if let (Some(t), Some(cert), Some(key)) = (&tls, &a.tls_cert, &a.tls_key) {
         tonic::transport::Server::builder()
-            .tls_config(t.clone())
+            .tls_config(t.grpc.clone())
             .map_err(|e| {
                 input_err(format!(
                     "--tls-cert {} / --tls-key {}: {}",
@@ -161,7 +160,7 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
         .await
         .with_context(|| format!("cannot listen on {addr}"))?;
     let bound = listener.local_addr().context("reading the bound address")?;
-    let dashboard = dashboard_listener(&a, token.is_some())?;
+    let dashboard = dashboard_listener(&a, tls.as_ref(), token.is_some())?;
     {
         use std::io::Write;
         let mut out = std::io::stdout().lock();
@@ -190,7 +189,7 @@ pub async fn serve(a: ServeArgs) -> Result<()> {
             stop_grace: std::time::Duration::from_secs_f64(a.stop_grace_s),
         },
         token,
-        tls,
+        tls: tls.map(|t| t.grpc),
         dashboard,
     };
     ess_learner::control::serve::serve(listener, cfg, shutdown_signal()).await

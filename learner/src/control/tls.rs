@@ -92,16 +92,19 @@ fn pem_err(flag: &'static str, path: &Path, what: &str) -> TlsError {
     }
 }
 
-/// A certificate chain and its key, both given or neither.
-fn identity(
-    cert: Option<&Path>,
-    key: Option<&Path>,
+/// A PEM file's path and contents.
+type Pem<'a> = (&'a Path, Vec<u8>);
+
+/// A certificate chain and its key as PEM, both given or neither.
+fn pem_pair<'a>(
+    cert: Option<&'a Path>,
+    key: Option<&'a Path>,
     names: (&'static str, &'static str),
-) -> Result<Option<Identity>, TlsError> {
+) -> Result<Option<(Pem<'a>, Pem<'a>)>, TlsError> {
     match (cert, key) {
-        (Some(c), Some(k)) => Ok(Some(Identity::from_pem(
-            certificates(names.0, c)?,
-            private_key(names.1, k)?,
+        (Some(c), Some(k)) => Ok(Some((
+            (c, certificates(names.0, c)?),
+            (k, private_key(names.1, k)?),
         ))),
         (None, None) => Ok(None),
         (Some(_), None) => Err(TlsError::Pair {
@@ -115,14 +118,27 @@ fn identity(
     }
 }
 
+/// The server's TLS files, read and checked once: the gRPC side's configuration
+/// ([`ServerTls::grpc`]) and, from the same bytes, the dashboard's ([`ServerTls::https`]).
+#[derive(Debug, Clone)]
+pub struct ServerTls {
+    /// tonic's configuration for the gRPC listener.
+    pub grpc: ServerTlsConfig,
+    cert: (PathBuf, Vec<u8>),
+    key: (PathBuf, Vec<u8>),
+    client_ca: Option<(PathBuf, Vec<u8>)>,
+}
+
 /// The server's TLS: its identity, and the CA its clients' certificates must chain to
 /// (mutual TLS) when `client_ca` is given. `None` when neither file is given.
 pub fn server_config(
     cert: Option<&Path>,
     key: Option<&Path>,
     client_ca: Option<&Path>,
-) -> Result<Option<ServerTlsConfig>, TlsError> {
-    let Some(id) = identity(cert, key, ("--tls-cert", "--tls-key"))? else {
+) -> Result<Option<ServerTls>, TlsError> {
+    let Some(((cert, cert_pem), (key, key_pem))) =
+        pem_pair(cert, key, ("--tls-cert", "--tls-key"))?
+    else {
         return match client_ca {
             Some(_) => Err(TlsError::Pair {
                 given: "--tls-client-ca",
@@ -131,59 +147,65 @@ pub fn server_config(
             None => Ok(None),
         };
     };
-    let mut cfg = ServerTlsConfig::new()
-        .identity(id)
+    let mut grpc = ServerTlsConfig::new()
+        .identity(Identity::from_pem(&cert_pem, &key_pem))
         .timeout(HANDSHAKE_TIMEOUT);
-    if let Some(ca) = client_ca {
-        cfg = cfg.client_ca_root(Certificate::from_pem(certificates("--tls-client-ca", ca)?));
-    }
-    Ok(Some(cfg))
+    let ca = match client_ca {
+        Some(ca) => {
+            let pem = certificates("--tls-client-ca", ca)?;
+            grpc = grpc.client_ca_root(Certificate::from_pem(&pem));
+            Some((ca.to_path_buf(), pem))
+        }
+        None => None,
+    };
+    Ok(Some(ServerTls {
+        grpc,
+        cert: (cert.to_path_buf(), cert_pem),
+        key: (key.to_path_buf(), key_pem),
+        client_ca: ca,
+    }))
 }
 
-/// The same server identity (and client CA) as [`server_config`], as the rustls
-/// configuration the dashboard's HTTPS listener takes; `None` without a certificate.
-/// Errors name the file, as there.
-pub fn rustls_server(
-    cert: Option<&Path>,
-    key: Option<&Path>,
-    client_ca: Option<&Path>,
-) -> Result<Option<std::sync::Arc<tokio_rustls::rustls::ServerConfig>>, TlsError> {
-    use tokio_rustls::rustls;
-    let (Some(cert), Some(key)) = (cert, key) else {
-        return Ok(None);
-    };
-    let chain: Vec<CertificateDer<'static>> =
-        CertificateDer::pem_slice_iter(&certificates("--tls-cert", cert)?)
+impl ServerTls {
+    /// The same identity (and client CA) as rustls' configuration, for the dashboard's
+    /// HTTPS listener. Errors name the file, as [`server_config`]'s do.
+    pub fn https(&self) -> Result<std::sync::Arc<tokio_rustls::rustls::ServerConfig>, TlsError> {
+        use tokio_rustls::rustls;
+        let ((cert, cert_pem), (key, key_pem)) = (&self.cert, &self.key);
+        let chain: Vec<CertificateDer<'static>> = CertificateDer::pem_slice_iter(cert_pem)
             .collect::<Result<_, _>>()
             .map_err(|e| pem_err("--tls-cert", cert, &e.to_string()))?;
-    let der = PrivateKeyDer::from_pem_slice(&private_key("--tls-key", key)?)
-        .map_err(|e| pem_err("--tls-key", key, &e.to_string()))?;
-    let provider = std::sync::Arc::new(rustls::crypto::ring::default_provider());
-    let builder = rustls::ServerConfig::builder_with_provider(provider.clone())
-        .with_safe_default_protocol_versions()
-        .map_err(|e| pem_err("--tls-cert", cert, &e.to_string()))?;
-    let builder = match client_ca {
-        Some(ca) => {
-            let mut roots = rustls::RootCertStore::empty();
-            for c in CertificateDer::pem_slice_iter(&certificates("--tls-client-ca", ca)?) {
-                let c = c.map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
-                roots
-                    .add(c)
-                    .map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
+        let der = PrivateKeyDer::from_pem_slice(key_pem)
+            .map_err(|e| pem_err("--tls-key", key, &e.to_string()))?;
+        let provider = std::sync::Arc::new(rustls::crypto::ring::default_provider());
+        let builder = rustls::ServerConfig::builder_with_provider(provider.clone())
+            .with_safe_default_protocol_versions()
+            .map_err(|e| pem_err("--tls-cert", cert, &e.to_string()))?;
+        let builder = match &self.client_ca {
+            Some((ca, pem)) => {
+                let mut roots = rustls::RootCertStore::empty();
+                for c in CertificateDer::pem_slice_iter(pem) {
+                    let c = c.map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
+                    roots
+                        .add(c)
+                        .map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
+                }
+                let verifier = rustls::server::WebPkiClientVerifier::builder_with_provider(
+                    roots.into(),
+                    provider,
+                )
+                .build()
+                .map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
+                builder.with_client_cert_verifier(verifier)
             }
-            let verifier =
-                rustls::server::WebPkiClientVerifier::builder_with_provider(roots.into(), provider)
-                    .build()
-                    .map_err(|e| pem_err("--tls-client-ca", ca, &e.to_string()))?;
-            builder.with_client_cert_verifier(verifier)
-        }
-        None => builder.with_no_client_auth(),
-    };
-    let mut cfg = builder
-        .with_single_cert(chain, der)
-        .map_err(|e| pem_err("--tls-key", key, &format!("does not serve --tls-cert: {e}")))?;
-    cfg.alpn_protocols = vec![b"h2".to_vec(), b"http/1.1".to_vec()];
-    Ok(Some(std::sync::Arc::new(cfg)))
+            None => builder.with_no_client_auth(),
+        };
+        let mut cfg = builder
+            .with_single_cert(chain, der)
+            .map_err(|e| pem_err("--tls-key", key, &format!("does not serve --tls-cert: {e}")))?;
+        cfg.alpn_protocols = vec![b"h2".to_vec(), b"http/1.1".to_vec()];
+        Ok(std::sync::Arc::new(cfg))
+    }
 }
 
 /// The client's TLS: the CA that signed the server's certificate (else the system's
@@ -198,8 +220,8 @@ pub fn client_config(
         Some(ca) => cfg.ca_certificate(Certificate::from_pem(certificates("--tls-ca", ca)?)),
         None => cfg.with_native_roots(),
     };
-    if let Some(id) = identity(cert, key, ("--tls-cert", "--tls-key"))? {
-        cfg = cfg.identity(id);
+    if let Some(((_, c), (_, k))) = pem_pair(cert, key, ("--tls-cert", "--tls-key"))? {
+        cfg = cfg.identity(Identity::from_pem(c, k));
     }
     Ok(cfg)
 }
