@@ -36,18 +36,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_client(grpc)
         .compile_fds(fds)?;
     // ONNX's own schema (vendored from the onnx wheel), for `ess export --onnx`.
-    let onnx = protox::compile([root.join("onnx/onnx.proto")], [&root])?;
-    tonic_prost_build::configure()
-        .build_server(false)
-        .build_client(false)
-        .compile_fds(onnx)?;
+    messages_only(protox::compile([root.join("onnx/onnx.proto")], [&root])?)?;
     // TensorBoard's own Event / Summary messages (vendored from tensorflow/tensorboard),
     // for the run's event files (`ess_learner::tboard`).
     let tb = protox::compile([root.join("tensorboard/compat/proto/event.proto")], [&root])?;
-    tonic_prost_build::configure()
-        .build_server(false)
-        .build_client(false)
-        .compile_fds(tb)?;
+    messages_only(tb)?;
     // Foxglove's published schemas (vendored from foxglove/foxglove-sdk) for the run
     // log's 3D scene; their descriptor set is the MCAP channels' schema data.
     let fox = protox::compile(
@@ -61,9 +54,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         out.join("foxglove_descriptor.bin"),
         prost::Message::encode_to_vec(&fox),
     )?;
+    messages_only(fox)?;
+    Ok(())
+}
+
+/// prost messages of an outside schema, no gRPC stubs.
+fn messages_only(fds: prost_types::FileDescriptorSet) -> std::io::Result<()> {
     tonic_prost_build::configure()
         .build_server(false)
         .build_client(false)
-        .compile_fds(fox)?;
-    Ok(())
+        .compile_fds(fds)
 }

@@ -62,20 +62,20 @@ fn vec3(v: [f64; 3]) -> fx::Vector3 {
     }
 }
 
+/// A MuJoCo quaternion (w, x, y, z) as Foxglove's.
+fn quat(q: [f64; 4]) -> fx::Quaternion {
+    fx::Quaternion {
+        x: q[1],
+        y: q[2],
+        z: q[3],
+        w: q[0],
+    }
+}
+
 fn pose(pos: [f64; 3], q: [f64; 4]) -> fx::Pose {
     fx::Pose {
-        position: Some(fx::Vector3 {
-            x: pos[0],
-            y: pos[1],
-            z: pos[2],
-        }),
-        // MuJoCo's quaternions are (w, x, y, z).
-        orientation: Some(fx::Quaternion {
-            x: q[1],
-            y: q[2],
-            z: q[3],
-            w: q[0],
-        }),
+        position: Some(vec3(pos)),
+        orientation: Some(quat(q)),
     }
 }
 
@@ -181,20 +181,12 @@ pub fn transforms(scene: &Scene, poses: &[Pose], t_ns: u64) -> fx::FrameTransfor
             .iter()
             .zip(poses)
             .filter(|(b, _)| b.name != WORLD_FRAME)
-            .map(|(b, p)| {
-                let q = p.quat;
-                fx::FrameTransform {
-                    timestamp: Some(t),
-                    parent_frame_id: WORLD_FRAME.into(),
-                    child_frame_id: b.name.clone(),
-                    translation: Some(vec3(p.pos)),
-                    rotation: Some(fx::Quaternion {
-                        x: q[1],
-                        y: q[2],
-                        z: q[3],
-                        w: q[0],
-                    }),
-                }
+            .map(|(b, p)| fx::FrameTransform {
+                timestamp: Some(t),
+                parent_frame_id: WORLD_FRAME.into(),
+                child_frame_id: b.name.clone(),
+                translation: Some(vec3(p.pos)),
+                rotation: Some(quat(p.quat)),
             })
             .collect(),
     }
