@@ -135,6 +135,7 @@ fn main() -> anyhow::Result<()> {
                 expert: &eiv,
                 labeled: &liv,
                 noise: &[],
+                instance_noise: &[],
                 report: false,
             };
             let mut step = || -> anyhow::Result<()> {

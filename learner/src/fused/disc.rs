@@ -85,6 +85,9 @@ pub struct DiscDraw<'a> {
     pub labeled: &'a [i64],
     /// Noise of the contrastive copies `[n_con][inp]` (the first `n_con` expert rows).
     pub noise: &'a [f32],
+    /// Instance noise `[generated + expert][inp]` added to those rows
+    /// (`disc.input_noise`); empty: none.
+    pub instance_noise: &'a [f32],
     /// Compute every term's value (the logged step); else only the gradients' (the
     /// BCE's value costs a logarithm per row).
     pub report: bool,
@@ -197,11 +200,12 @@ impl Stack<'_, '_> {
         x.reset(inp, end - start);
         let [_, e, l, _] = self.lay.cols();
         let (src, draw) = (self.src, self.draw);
+        let instance = |j: usize| draw.instance_noise.get(j * inp..(j + 1) * inp);
         for (col, j) in (start..end).enumerate() {
             let (data, idx, noise) = if j < e.start {
-                (src.gen_x, draw.gen_[j], None)
+                (src.gen_x, draw.gen_[j], instance(j))
             } else if j < l.start {
-                (src.expert_x, draw.expert[j - e.start], None)
+                (src.expert_x, draw.expert[j - e.start], instance(j))
             } else if j < l.start + l.len {
                 (src.labeled_x, draw.labeled[j - l.start], None)
             } else {
@@ -270,6 +274,13 @@ impl DiscStep {
             return Err(ShapeError::new(
                 "contrastive noise shorter than its rows".into(),
             ));
+        }
+        let stacked = (lay.gen_ + lay.expert) * net.inp();
+        if !draw.instance_noise.is_empty() && draw.instance_noise.len() != stacked {
+            return Err(ShapeError::new(format!(
+                "instance noise of {} values for {stacked}",
+                draw.instance_noise.len()
+            )));
         }
         self.forward(team, net, opt.params, src, draw, lay)?;
         let report = self.terms(net, src, draw, w, lay, log_prior)?;
@@ -346,7 +357,14 @@ impl DiscStep {
         };
         let f = |x: f64| x as f32;
         s.reset();
-        r.bce = terms::disc_bce(&h, &mut d, (e, g), f(w.disc), draw.report, s);
+        r.bce = terms::disc_bce(
+            &h,
+            &mut d,
+            (e, g),
+            (f(w.disc), f(w.label_smoothing)),
+            draw.report,
+            s,
+        );
         let gen_rows = |data: &[f32], width: usize, out: &mut Vec<f32>| -> Result<(), ShapeError> {
             out.clear();
             for &i in draw.gen_ {

@@ -142,19 +142,20 @@ fn softmax(h: &Heads<'_, &[f32]>, c: Cols, s: &mut Scratch) {
     }
 }
 
-/// Eq. 1, [`crate::objective::disc_bce::disc_bce`]: `mean_E softplus(-logit) +
-/// mean_G softplus(logit)`; gradient `(sigmoid(x) - target) / rows`. The value (a
-/// logarithm per row) only when `value` (the step that is logged); else 0.
+/// Eq. 1, [`crate::objective::disc_bce::disc_bce`]: `mean_E BCE(logit, 1 - smoothing)
+/// + mean_G softplus(logit)`, where `BCE(x, t) = t softplus(-x) + (1 - t) softplus(x)`;
+/// gradient `(sigmoid(x) - t) / rows`. The value (a logarithm per row) only when
+/// `value` (the step that is logged); else 0.
 pub fn disc_bce(
     h: &Heads<'_, &[f32]>,
     d: &mut Heads<'_, &mut [f32]>,
     (expert, gen_): (Cols, Cols),
-    w: f32,
+    (w, smoothing): (f32, f32),
     value: bool,
     s: &mut Scratch,
 ) -> f64 {
     let mut total = 0.0f64;
-    for (c, target) in [(expert, 1.0f32), (gen_, 0.0)] {
+    for (c, target) in [(expert, 1.0 - smoothing), (gen_, 0.0)] {
         if c.len == 0 {
             continue;
         }
@@ -174,8 +175,9 @@ pub fn disc_bce(
             };
             *g += (sig - target) * inv;
             if value {
-                let y = if target == 1.0 { -x } else { x };
-                sum += f64::from(y.max(0.0) + math::ln(1.0 + e));
+                // softplus(x) = max(x, 0) + ln(1 + e); softplus(-x) = softplus(x) - x.
+                let sp = x.max(0.0) + math::ln(1.0 + e);
+                sum += f64::from(sp - target * x);
             }
         }
         total += sum / c.len as f64;
@@ -521,18 +523,24 @@ mod tests {
 
     #[test]
     fn disc_bce_is_eq_1_with_its_gradient() {
+        for smoothing in [0.0, 0.1] {
+            disc_bce_matches_tch(smoothing);
+        }
+    }
+
+    fn disc_bce_matches_tch(smoothing: f32) {
         let o = outputs();
         let mut g = vec![0.0; o.len()];
         let v = disc_bce(
             &Heads::new(&o[..], N, K),
             &mut Heads::new(&mut g[..], N, K),
             (E, G),
-            0.7,
+            (0.7, smoothing),
             true,
             &mut Scratch::default(),
         );
         let (e, p) = (leaf(&o, 0, 1, E), leaf(&o, 0, 1, G));
-        let t = objective::disc_bce::disc_bce(&e.view([-1]), &p.view([-1]));
+        let t = objective::disc_bce::disc_bce(&e.view([-1]), &p.view([-1]), smoothing.into());
         (&t * 0.7).backward();
         let mut want = vec![0.0; o.len()];
         place(&e.grad(), 0, 1, E, &mut want);

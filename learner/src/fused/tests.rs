@@ -26,7 +26,7 @@
 use super::disc::{DiscDraw, DiscSources};
 use super::reward::RewardInputs;
 use super::*;
-use crate::objective::combined::{DiscBatch, DiscWeights, disc_objective};
+use crate::objective::combined::{DiscBatch, DiscWeights, disc_objective, instance_noise};
 use crate::objective::reward::{RewardWeights, policy_reward};
 use crate::presets::{ConfigLayers, PRESETS};
 use crate::train::nets::{obs_columns, tensor_to_vec};
@@ -267,7 +267,7 @@ fn disc_step(cfg: &CheckedConfig, d: Dims, a: &mut Nets, b: &mut Nets, worst: &m
     let gcode = randn(&[1500, k]).softmax(-1, Kind::Float);
     let geps = Tensor::rand([1500], (Kind::Float, Device::Cpu)) * 2.0 - 1.0;
     let (emode, labels) = (idx(k, 3000), idx(k, 400));
-    let w = DiscWeights::at(&cfg.method, 200);
+    let w = DiscWeights::at(&cfg.method, 200).with_disc(&cfg.disc);
     let (gi, ei) = (idx(1500, batch), idx(3000, batch));
     let li = if w.qc_labeled > 0.0 {
         idx(400, batch.min(400))
@@ -319,6 +319,11 @@ fn disc_step(cfg: &CheckedConfig, d: Dims, a: &mut Nets, b: &mut Nets, worst: &m
     let t = terms.expect("two runs");
     a.dopt.step();
     tch::manual_seed(11);
+    let instance = if w.input_noise > 0.0 {
+        instance_noise(2 * batch, inp, w.input_noise)
+    } else {
+        Tensor::zeros([0], (Kind::Float, Device::Cpu))
+    };
     let n_con = if w.contrastive > 0.0 {
         w.contrastive_batch.min(batch as usize)
     } else {
@@ -345,6 +350,7 @@ fn disc_step(cfg: &CheckedConfig, d: Dims, a: &mut Nets, b: &mut Nets, worst: &m
         expert: &ei,
         labeled: &li,
         noise: floats(&noise).unwrap(),
+        instance_noise: floats(&instance).unwrap(),
         report: true,
     };
     let lpv = tensor_to_vec(&lp);
@@ -509,10 +515,15 @@ fn rewards(cfg: &CheckedConfig, d: Dims, b: &mut Nets, worst: &mut Vec<Row>) {
 static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 fn run_all(env: &str) {
+    run_all_with(env, &[]);
+}
+
+/// Every preset on `env` with `set` on top of one PPO epoch.
+fn run_all_with(env: &str, set: &[&str]) {
     let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let mut failures = Vec::new();
     for (preset, _) in PRESETS {
-        let cfg = config(env, preset, &["ppo.epochs=1"]);
+        let cfg = config(env, preset, &[&["ppo.epochs=1"], set].concat());
         let d = dims(&cfg);
         let (mut a, mut b) = twins(&cfg, d);
         let mut worst = Vec::new();
@@ -563,6 +574,15 @@ fn walker2d_every_preset_matches_tch() {
 #[test]
 fn humanoid_every_preset_matches_tch() {
     run_all("humanoid");
+}
+
+#[test]
+fn d_regularisers_match_tch() {
+    // Label smoothing and instance noise (drawn before the contrastive noise on both).
+    run_all_with(
+        "reacher",
+        &["disc.label_smoothing=0.1", "disc.input_noise=0.3"],
+    );
 }
 
 #[test]

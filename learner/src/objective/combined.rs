@@ -27,7 +27,7 @@ use super::{
     rim::rim,
 };
 use crate::train::nets::Discriminator;
-use ess_proto::config::{DiscReward, MethodConfig};
+use ess_proto::config::{DiscConfig, DiscReward, MethodConfig};
 use tch::Tensor;
 
 /// Linear warm-up from 0 to 1 over `iters` iterations (0: always 1).
@@ -70,6 +70,10 @@ pub struct DiscWeights {
     pub rim_marginal_kl: f64,
     /// RIM's L2 weight on the encoder.
     pub rim_l2: f64,
+    /// D's target on expert rows is `1 - label_smoothing` (`disc.label_smoothing`).
+    pub label_smoothing: f64,
+    /// Std of the instance noise on generated and expert rows (`disc.input_noise`).
+    pub input_noise: f64,
 }
 
 impl DiscWeights {
@@ -90,6 +94,17 @@ impl DiscWeights {
             rim_cond_entropy: m.rim_cond_entropy,
             rim_marginal_kl: m.rim_marginal_kl,
             rim_l2: m.rim_l2,
+            label_smoothing: 0.0,
+            input_noise: 0.0,
+        }
+    }
+
+    /// With D's regularisers of `d` (label smoothing, instance noise).
+    pub fn with_disc(self, d: &DiscConfig) -> Self {
+        Self {
+            label_smoothing: d.label_smoothing,
+            input_noise: d.input_noise,
+            ..self
         }
     }
 }
@@ -168,6 +183,11 @@ fn weighted(loss: &mut Tensor, weight: f64, value: impl FnOnce() -> Tensor) -> O
     })
 }
 
+/// `[rows, cols]` of N(0, std^2) from libtorch's generator (D's instance noise).
+pub fn instance_noise(rows: i64, cols: i64, std: f64) -> Tensor {
+    Tensor::randn([rows, cols], (tch::Kind::Float, tch::Device::Cpu)) * std
+}
+
 /// Eq. 9's D/Q side on one batch, in one forward pass of `disc`. `log_prior` is
 /// `log p(c)` `[K]`, detached by the caller unless RIM is to move p(c). The
 /// contrastive noise is drawn from libtorch's generator.
@@ -189,12 +209,23 @@ pub fn disc_objective(
     } else {
         b.expert_x.shallow_clone()
     };
+    // Instance noise first, then the contrastive copies' noise: the fused step draws
+    // them from libtorch's generator in the same order.
+    let (gen_x, noisy_expert_x) = if w.input_noise > 0.0 {
+        let noise = instance_noise(n_gen + n_exp, b.gen_x.size()[1], w.input_noise);
+        (
+            b.gen_x + noise.narrow(0, 0, n_gen),
+            &expert_x + noise.narrow(0, n_gen, n_exp),
+        )
+    } else {
+        (b.gen_x.shallow_clone(), expert_x.shallow_clone())
+    };
     let n_con = if w.contrastive > 0.0 {
         (w.contrastive_batch as i64).min(n_exp)
     } else {
         0
     };
-    let mut rows = vec![b.gen_x.shallow_clone(), expert_x.shallow_clone()];
+    let mut rows = vec![gen_x, noisy_expert_x];
     if n_lab > 0 {
         rows.push(b.labeled_x.shallow_clone());
     }
@@ -211,7 +242,7 @@ pub fn disc_objective(
     let og_qc = part(&out.qc_logits, 0, n_gen);
     let oe_qc = part(&out.qc_logits, n_gen, n_exp);
 
-    let bce = disc_bce(&oe_d, &og_d);
+    let bce = disc_bce(&oe_d, &og_d, w.label_smoothing);
     let mut loss = &bce * w.disc;
     if w.grad_penalty > 0.0 {
         loss += r1_penalty(&expert_x, &oe_d) * w.grad_penalty;
@@ -378,7 +409,7 @@ mod tests {
         );
         let r = rim(&oe.qc_logits, &log_prior(), &disc.encoder_params());
         let z2 = disc.forward(&noisy).qc_logits;
-        let want = disc_bce(&oe.d_logit, &og.d_logit) * 1.0
+        let want = disc_bce(&oe.d_logit, &og.d_logit, 0.0) * 1.0
             + r1_penalty(&xe, &oe.d_logit) * 0.3
             + qeps_mae(&og.qeps, &d.gen_eps) * 1.0
             + soft_cross_entropy(&og.qc_logits, &d.gen_code) * 0.7

@@ -7,9 +7,10 @@
 
 use tch::{Reduction, Tensor};
 
-/// `BCE(D(expert) = 1) + BCE(D(policy) = 0)`, each averaged over its batch.
-pub fn disc_bce(expert_logit: &Tensor, policy_logit: &Tensor) -> Tensor {
-    let ones = expert_logit.ones_like();
+/// `BCE(D(expert) = 1 - smoothing) + BCE(D(policy) = 0)`, each averaged over its
+/// batch (`smoothing` 0: Eq. 1; else one-sided label smoothing, `disc.label_smoothing`).
+pub fn disc_bce(expert_logit: &Tensor, policy_logit: &Tensor, smoothing: f64) -> Tensor {
+    let ones = expert_logit.ones_like() * (1.0 - smoothing);
     let zeros = policy_logit.zeros_like();
     expert_logit.binary_cross_entropy_with_logits::<Tensor>(&ones, None, None, Reduction::Mean)
         + policy_logit.binary_cross_entropy_with_logits::<Tensor>(
@@ -28,7 +29,7 @@ mod tests {
     #[test]
     fn bce_of_zero_logits_is_two_ln_two() {
         let z = Tensor::from_slice(&[0.0f32, 0.0]);
-        let v = scalar(&disc_bce(&z, &z));
+        let v = scalar(&disc_bce(&z, &z, 0.0));
         assert!((v - 2.0 * 2f64.ln()).abs() < 1e-6, "{v}");
     }
 
@@ -38,7 +39,7 @@ mod tests {
         let e = Tensor::from_slice(&[2.0f32]);
         let p = Tensor::from_slice(&[-1.0f32]);
         let want = (1.0 + (-2f64).exp()).ln() + (1.0 + (-1f64).exp()).ln();
-        let v = scalar(&disc_bce(&e, &p));
+        let v = scalar(&disc_bce(&e, &p, 0.0));
         assert!((v - want).abs() < 1e-6, "{v} vs {want}");
     }
 }

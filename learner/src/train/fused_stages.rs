@@ -8,7 +8,7 @@ use super::{IterationLog, Trainer};
 use crate::fused::disc::{DiscDraw, DiscReport, DiscSources};
 use crate::fused::reward::RewardInputs;
 use crate::fused::{FusedError, floats, longs, ppo::log_softmax};
-use crate::objective::combined::DiscWeights;
+use crate::objective::combined::{DiscWeights, instance_noise};
 use crate::objective::reward::RewardWeights;
 use anyhow::{Context, Result};
 use ess_proto::config::{LatentPrior, RolloutCodes};
@@ -39,8 +39,11 @@ impl Trainer<'_> {
         let prior_from_rim =
             m.prior == LatentPrior::Gumbel && m.rim_prior_grad && !uniform_rollouts;
         let fused = self.fused.as_mut().context("no fused backend")?;
-        // The contrastive copies' noise from libtorch's generator, as `disc_objective`
-        // draws it (same numbers on both backends).
+        // Instance noise, then the contrastive copies' noise, from libtorch's generator,
+        // as `disc_objective` draws them (same numbers on both backends).
+        let inp = fused.disc_net.inp() as i64;
+        let instance = (w.input_noise > 0.0)
+            .then(|| instance_noise((gi.len() + ei.len()) as i64, inp, w.input_noise));
         let n_con = if w.contrastive > 0.0 {
             w.contrastive_batch.min(ei.len())
         } else {
@@ -65,6 +68,10 @@ impl Trainer<'_> {
             expert: ei,
             labeled: li,
             noise: match &noise {
+                Some(t) => floats(t)?,
+                None => &[],
+            },
+            instance_noise: match &instance {
                 Some(t) => floats(t)?,
                 None => &[],
             },

@@ -107,7 +107,7 @@ impl Trainer<'_> {
     ) -> Result<()> {
         let cfg = self.cfg;
         let m = &cfg.method;
-        let w = DiscWeights::at(m, it);
+        let w = DiscWeights::at(m, it).with_disc(&cfg.disc);
         let uniform_rollouts = m.rollout_codes == RolloutCodes::Uniform;
         let prior_from_rim =
             m.prior == LatentPrior::Gumbel && m.rim_prior_grad && !uniform_rollouts;

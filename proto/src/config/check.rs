@@ -256,6 +256,13 @@ impl DiscConfig {
         )?;
         finite_pos("disc.lr", q.lr)?;
         range(q.batch >= 2, "disc.batch", q.batch, "must be >= 2")?;
+        range(
+            (0.0..0.5).contains(&q.label_smoothing),
+            "disc.label_smoothing",
+            q.label_smoothing,
+            "must be in [0, 0.5)",
+        )?;
+        finite_nonneg("disc.input_noise", q.input_noise)?;
         Ok(())
     }
 }

@@ -494,6 +494,16 @@ pub struct DiscConfig {
     /// `qpos[2..]` and `qvel` and drops the com-inertia, com-velocity, actuator-force and
     /// contact-force blocks, by which D can tell policy from expert without the pose.
     pub obs_prefix: usize,
+    /// One-sided label smoothing (Salimans et al. 2016): D's target on expert rows is
+    /// `1 - label_smoothing` instead of 1 in Eq. 1's cross-entropy (0: off, the
+    /// paper's setting). A D that may not be sure keeps finite logits on expert-like
+    /// generated steps.
+    pub label_smoothing: f64,
+    /// Instance noise (Sønderby et al. 2017): std of Gaussian noise added to the
+    /// normalised generated and unlabeled expert rows of every D/Q step (0: off, the
+    /// paper's setting), so the two sets overlap and D cannot separate them perfectly.
+    /// The policy's reward reads D without noise.
+    pub input_noise: f64,
 }
 
 impl Default for DiscConfig {
@@ -504,6 +514,8 @@ impl Default for DiscConfig {
             steps: 50,
             batch: 1000,
             obs_prefix: 0,
+            label_smoothing: 0.0,
+            input_noise: 0.0,
         }
     }
 }
