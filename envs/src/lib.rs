@@ -1,9 +1,10 @@
 //! `ess-envs`: environments, scripted experts, per-mode evaluation rewards and
 //! demonstration datasets for Ess.
 //!
-//! - [`env`](mod@env): the [`Env`] contract every environment obeys, the [`ScriptedExpert`]
-//!   extension for environments with scripted multi-modal experts, [`make_env`] (envs
-//!   with a scripted expert) and [`make_plain_env`] (every env).
+//! - [`env`](mod@env): the [`Env`] contract every environment obeys and the
+//!   [`ScriptedExpert`] extension for environments with scripted multi-modal experts.
+//! - [`registry`]: one line per env (its file's `ENTRY`): [`make_env`] (envs with their
+//!   experts), [`make_plain_env`] (every env), and how to add a task.
 //! - [`traj2d`]: the 2D trajectory task of the paper (Sec. 4, Fig. 1): four circular
 //!   behaviour modes through the origin.
 //! - [`reacher`]: the multi-target Reacher task (Sec. 4, "Task setup (2)") on MuJoCo:
@@ -38,6 +39,7 @@ mod mujoco;
 pub mod pusher;
 pub mod reacher;
 pub mod read;
+pub mod registry;
 pub mod scene;
 pub mod task;
 pub mod traj2d;
@@ -46,15 +48,13 @@ pub mod walker2d;
 pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
-pub use env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, make_env, make_env_in, make_plain_env,
-    make_training_env,
-};
+pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome};
 pub use expert::{ExpertEnv, ExpertError, ExpertMeta, ExpertPolicy, expert_path, experts_dir};
 pub use humanoid::{Humanoid, HumanoidConfig};
 pub use locomotion::LocoMode;
 pub use pusher::{Pusher, PusherConfig};
 pub use reacher::{Reacher, ReacherConfig};
+pub use registry::{known_envs, make_env, make_env_in, make_plain_env, make_training_env};
 pub use task::{TASK_PREFIX, TaskEnv, TaskFile};
 pub use traj2d::{Traj2D, Traj2DConfig};
 pub use walker2d::{Walker2d, Walker2dConfig};

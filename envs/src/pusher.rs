@@ -71,7 +71,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, StepOutcome, check_action, check_can_step, check_obs_len,
+    Build, Env, EnvEntry, EnvError, EnvSpec, StepOutcome, check_action, check_can_step,
+    check_obs_len,
 };
 use crate::mujoco::{self, model_error};
 
@@ -616,11 +617,11 @@ impl Env for Pusher {
 
     fn scene(&self) -> Option<crate::scene::Scene> {
         let dt = self.data.model().opt().timestep * self.cfg.frame_skip as f64;
-        Some(crate::scene::mujoco_scene(&self.data, dt))
+        Some(crate::mujoco::scene(&self.data, dt))
     }
 
     fn body_poses(&self) -> Vec<crate::scene::Pose> {
-        crate::scene::mujoco_poses(&self.data)
+        crate::mujoco::poses(&self.data)
     }
 
     /// `[MuJoCo integration state, last action (7), steps, started, done]`.
@@ -659,6 +660,17 @@ impl Env for Pusher {
         }
     }
 }
+
+/// The registry's entry ([`crate::registry`]): `n_modes` goals, trained experts.
+pub const ENTRY: EnvEntry = EnvEntry {
+    name: "pusher",
+    build: Build::Trained(|n_modes| {
+        Ok(Box::new(Pusher::new(PusherConfig {
+            n_modes,
+            ..PusherConfig::default()
+        })?))
+    }),
+};
 
 #[cfg(test)]
 mod tests {

@@ -45,8 +45,8 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action, check_can_step,
-    check_obs_len,
+    Build, Env, EnvEntry, EnvError, EnvSpec, ScriptedExpert, StepOutcome, check_action,
+    check_can_step, check_obs_len,
 };
 use crate::mujoco;
 
@@ -435,11 +435,11 @@ impl Env for Reacher {
 
     fn scene(&self) -> Option<crate::scene::Scene> {
         let dt = self.data.model().opt().timestep * self.cfg.frame_skip as f64;
-        Some(crate::scene::mujoco_scene(&self.data, dt))
+        Some(crate::mujoco::scene(&self.data, dt))
     }
 
     fn body_poses(&self) -> Vec<crate::scene::Pose> {
-        crate::scene::mujoco_poses(&self.data)
+        crate::mujoco::poses(&self.data)
     }
 
     /// `[MuJoCo integration state, last action (2), steps, started, done]`.
@@ -507,6 +507,17 @@ impl ScriptedExpert for Reacher {
         Ok(())
     }
 }
+
+/// The registry's entry ([`crate::registry`]): `n_modes` targets, scripted experts.
+pub const ENTRY: EnvEntry = EnvEntry {
+    name: "reacher",
+    build: Build::Scripted(|n_modes| {
+        Ok(Box::new(Reacher::new(ReacherConfig {
+            n_modes,
+            ..ReacherConfig::default()
+        })?))
+    }),
+};
 
 #[cfg(test)]
 mod tests {

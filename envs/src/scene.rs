@@ -2,11 +2,9 @@
 //! body's frame ([`Scene`]), and the bodies' world poses after a step ([`Pose`]). The
 //! run log turns them into Foxglove's `SceneUpdate` and `FrameTransforms` messages so a
 //! logged episode plays back as a moving robot. Every MuJoCo env reads both from its
-//! model and data ([`mujoco_scene`], [`mujoco_poses`]): MuJoCo's `geom_*` and
-//! `xpos` / `xquat`.
-
-use crate::mujoco::Data;
-use mujoco_rs::prelude::{MjtGeomBase, MjtObjBase};
+//! model and data (`crate::mujoco::scene` and `crate::mujoco::poses`): MuJoCo's
+//! `geom_*` and `xpos` / `xquat`. This file holds the types alone, so the `Env` trait
+//! can name them without depending on MuJoCo.
 
 /// A geom's shape; sizes in metres as MuJoCo gives them.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -63,63 +61,6 @@ pub struct Pose {
     pub pos: [f64; 3],
     /// Orientation (`xquat`: w, x, y, z).
     pub quat: [f64; 4],
-}
-
-/// A MuJoCo geom's shape, `None` for the kinds a primitive cannot draw (meshes,
-/// height fields, signed-distance fields).
-fn shape(kind: MjtGeomBase, size: [f64; 3]) -> Option<Shape> {
-    Some(match kind {
-        MjtGeomBase::mjGEOM_PLANE => Shape::Plane([size[0], size[1]]),
-        MjtGeomBase::mjGEOM_SPHERE => Shape::Sphere(size[0]),
-        MjtGeomBase::mjGEOM_CAPSULE => Shape::Capsule(size[0], size[1]),
-        MjtGeomBase::mjGEOM_ELLIPSOID => Shape::Ellipsoid(size),
-        MjtGeomBase::mjGEOM_CYLINDER => Shape::Cylinder(size[0], size[1]),
-        MjtGeomBase::mjGEOM_BOX => Shape::Box(size),
-        _ => return None,
-    })
-}
-
-/// The bodies and geoms of `data`'s model; `dt` seconds per env step.
-pub(crate) fn mujoco_scene(data: &Data, dt: f64) -> Scene {
-    let m = data.model();
-    let nbody = m.ffi().nbody.max(0) as usize;
-    let mut bodies: Vec<Body> = (0..nbody)
-        .map(|b| Body {
-            name: match m.id_to_name(MjtObjBase::mjOBJ_BODY, b) {
-                Some(n) if !n.is_empty() => n.to_string(),
-                _ => format!("body{b}"),
-            },
-            geoms: Vec::new(),
-        })
-        .collect();
-    let (kinds, sizes, rgba) = (m.geom_type(), m.geom_size(), m.geom_rgba());
-    let (pos, quat, owner) = (m.geom_pos(), m.geom_quat(), m.geom_bodyid());
-    for g in 0..kinds.len() {
-        let Some(shape) = shape(kinds[g], sizes[g]) else {
-            continue;
-        };
-        if let Some(body) = usize::try_from(owner[g])
-            .ok()
-            .and_then(|b| bodies.get_mut(b))
-        {
-            body.geoms.push(Geom {
-                shape,
-                pos: pos[g],
-                quat: quat[g],
-                rgba: rgba[g],
-            });
-        }
-    }
-    Scene { bodies, dt }
-}
-
-/// The world pose of each body of `data` now, in [`Scene::bodies`]' order.
-pub(crate) fn mujoco_poses(data: &Data) -> Vec<Pose> {
-    data.xpos()
-        .iter()
-        .zip(data.xquat())
-        .map(|(p, q)| Pose { pos: *p, quat: *q })
-        .collect()
 }
 
 #[cfg(test)]

@@ -41,8 +41,8 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::env::{
-    Env, EnvError, EnvSpec, ScriptedExpert, StateReader, StateWriter, StepOutcome, check_action,
-    check_can_step, check_obs_len,
+    Build, Env, EnvEntry, EnvError, EnvSpec, ScriptedExpert, StateReader, StateWriter, StepOutcome,
+    check_action, check_can_step, check_obs_len,
 };
 
 /// Number of positions in an observation.
@@ -381,6 +381,22 @@ impl ScriptedExpert for Traj2D {
         Ok(())
     }
 }
+
+/// The registry's entry ([`crate::registry`]): exactly [`Traj2D::N_MODES`] modes, with
+/// scripted experts.
+pub const ENTRY: EnvEntry = EnvEntry {
+    name: "traj2d",
+    build: Build::Scripted(|n_modes| {
+        if n_modes != Traj2D::N_MODES {
+            return Err(EnvError::BadParam {
+                field: "n_modes",
+                value: n_modes.to_string(),
+                reason: format!("traj2d has exactly {} modes", Traj2D::N_MODES),
+            });
+        }
+        Ok(Box::new(Traj2D::new(Traj2DConfig::default())?))
+    }),
+};
 
 #[cfg(test)]
 mod tests {

@@ -29,10 +29,12 @@ use std::fmt;
 
 use serde::{Deserialize, Serialize};
 
-use crate::env::{Env, EnvError, EnvSpec, StateReader, StateWriter, StepOutcome, check_obs_len};
+use crate::env::{
+    Build, Env, EnvEntry, EnvError, EnvSpec, StateReader, StateWriter, StepOutcome, check_obs_len,
+};
 use crate::locomotion::{
-    LocoMode, ModelShape, N_MODES, RewardTerms, RewardWeights, Sim, check_non_negative,
-    check_positive, check_range, in_open_range, put,
+    LocoMode, ModelShape, N_MODES, RewardTerms, RewardWeights, Sim, check_n_modes,
+    check_non_negative, check_positive, check_range, in_open_range, put,
 };
 
 /// Name of the torso body the model must define.
@@ -308,11 +310,11 @@ impl Env for Walker2d {
     }
 
     fn scene(&self) -> Option<crate::scene::Scene> {
-        Some(crate::scene::mujoco_scene(&self.sim.data, self.sim.dt()))
+        Some(crate::mujoco::scene(&self.sim.data, self.sim.dt()))
     }
 
     fn body_poses(&self) -> Vec<crate::scene::Pose> {
-        crate::scene::mujoco_poses(&self.sim.data)
+        crate::mujoco::poses(&self.sim.data)
     }
 
     /// `[MuJoCo integration state, steps, started, done, last step's reward terms]`.
@@ -331,6 +333,16 @@ impl Env for Walker2d {
         Ok(())
     }
 }
+
+/// The registry's entry ([`crate::registry`]): forward, backward, balance; trained
+/// experts.
+pub const ENTRY: EnvEntry = EnvEntry {
+    name: "walker2d",
+    build: Build::Trained(|n_modes| {
+        check_n_modes("walker2d", n_modes)?;
+        Ok(Box::new(Walker2d::new(Walker2dConfig::default())?))
+    }),
+};
 
 #[cfg(test)]
 mod tests {

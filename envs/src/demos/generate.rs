@@ -5,7 +5,8 @@ use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{EnvError, ScriptedExpert, make_env};
+use crate::env::{EnvError, ScriptedExpert};
+use crate::registry::make_env;
 
 use super::{DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, FORMAT_VERSION};
 

@@ -67,7 +67,7 @@ const SPLITS: [&str; 2] = ["unlabeled", "labeled"];
 /// What dataset to generate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DemoSpec {
-    /// Environment name (see [`make_env`]).
+    /// Environment name (see [`crate::make_env`]).
     pub env: String,
     /// Number of behaviour modes.
     pub n_modes: usize,
@@ -411,7 +411,7 @@ pub use generate::{expert_episode, generate_demos, labeled_steps_per_mode, mode_
 mod tests {
     use super::file::{RawTensor, header, split_tensors};
     use super::*;
-    use crate::env::make_env;
+    use crate::registry::make_env;
     use proptest::prelude::*;
     use safetensors::tensor::{Dtype, TensorView};
     use std::borrow::Cow;

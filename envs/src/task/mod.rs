@@ -281,11 +281,11 @@ impl Env for TaskEnv {
     }
 
     fn scene(&self) -> Option<crate::scene::Scene> {
-        Some(crate::scene::mujoco_scene(&self.sim.data, self.sim.dt()))
+        Some(crate::mujoco::scene(&self.sim.data, self.sim.dt()))
     }
 
     fn body_poses(&self) -> Vec<crate::scene::Pose> {
-        crate::scene::mujoco_poses(&self.sim.data)
+        crate::mujoco::poses(&self.sim.data)
     }
 
     /// `[MuJoCo integration state, steps, started, done, last step's sum(ctrl^2)]`.
