@@ -17,4 +17,6 @@ pub mod transport;
 pub use ess_proto::Mlp;
 pub use policy::{Actor, LatentSpec, PolicyWeights, gumbel_softmax};
 pub use rollout::{ActorError, EvalEpisode, Worker, WorkerState, eval_episode};
-pub use transport::{EvalJob, EvalRunner, LocalEval, RolloutSource, ThreadedActors, split_steps};
+pub use transport::{
+    EvalJob, EvalRunner, LocalEval, RolloutSource, ThreadedActors, actor_seed, split_steps,
+};

@@ -81,6 +81,13 @@ impl EvalRunner for LocalEval<'_> {
     }
 }
 
+/// Seed of actor `i`'s random stream in a run seeded `seed`: the same on every
+/// transport (threads, processes, remote hosts), so one actor process reproduces one
+/// actor thread step for step.
+pub fn actor_seed(seed: u64, i: usize) -> u64 {
+    seed.wrapping_mul(1_000_003).wrapping_add(i as u64)
+}
+
 /// Steps each actor takes for a rollout of `steps`.
 pub fn split_steps(steps: usize, n: usize) -> Vec<usize> {
     (0..n)

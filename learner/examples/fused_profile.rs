@@ -72,7 +72,7 @@ fn main() -> anyhow::Result<()> {
         }),
     };
     let mut nets = Nets::new(&cfg, d)?;
-    let mut fused = Fused::new(&nets, threads)?;
+    let mut fused = Fused::new(nets.fused_view(), threads)?;
     let (inp, k, b) = (
         (d.disc_cols + d.act) as i64,
         d.codes as i64,

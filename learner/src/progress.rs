@@ -23,42 +23,6 @@ pub enum ProgressEvent {
     Summary(FinalRecord),
 }
 
-/// The metrics of `log` as `ess.v1.IterationMetrics`: what the progress stream, the
-/// run log's `/metrics` topic and `WatchJob` carry (the one mapping from
-/// [`IterationLog`]).
-pub fn iteration_metrics(log: &IterationLog) -> pb::IterationMetrics {
-    pb::IterationMetrics {
-        iteration: u32::try_from(log.iteration).unwrap_or(u32::MAX),
-        env_steps: log.env_steps as u64,
-        wall_s: log.wall_s,
-        rollout_s: log.rollout_s,
-        disc_s: log.disc_s,
-        ppo_s: log.ppo_s,
-        disc_bce: log.disc_bce,
-        d_acc_expert: log.d_acc_expert,
-        d_acc_policy: log.d_acc_policy,
-        qc_labeled: log.qc_labeled,
-        qc_generated: log.qc_generated,
-        qeps: log.qeps,
-        rim_entropy: log.rim_entropy,
-        rim_kl: log.rim_kl,
-        contrastive: log.contrastive,
-        reward_mean: log.reward_mean,
-        policy_loss: log.policy_loss,
-        value_loss: log.value_loss,
-        entropy: log.entropy,
-        approx_kl: log.approx_kl,
-        prior: log
-            .prior
-            .split(';')
-            .filter_map(|p| p.trim().parse().ok())
-            .collect(),
-        nmi: log.nmi,
-        ent: log.ent,
-        normalized_reward: log.normalized_reward,
-    }
-}
-
 /// The final result of a run (the headline of `summary.json`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FinalRecord {
@@ -145,7 +109,7 @@ impl<W: Write> JsonlProgress<W> {
 
 impl<W: Write> Progress for JsonlProgress<W> {
     fn iteration(&mut self, it: &IterationLog) {
-        self.emit(&ProgressEvent::Iteration(iteration_metrics(it)));
+        self.emit(&ProgressEvent::Iteration(it.metrics()));
     }
 
     fn message(&mut self, msg: &str) {

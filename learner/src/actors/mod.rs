@@ -32,7 +32,7 @@
 //! Configuration: the choice of transport is `run.transport` (`threads` |
 //! `processes`); `run.actors = 0` (in a config, `--set`, a job spec or `ess train
 //! --actors 0`) is the single-process path, one actor thread. Actor `i` seeds its stream
-//! with `train::actor_seed` on either transport, which is why `--actors 1` reproduces the
+//! with `ess_actor::actor_seed` on either transport, which is why `--actors 1` reproduces the
 //! threaded run bit for bit. A restarted actor gets a different seed (its predecessor's
 //! episodes are not replayed), so a run with a restart is
 //! no longer bit-identical to one without.

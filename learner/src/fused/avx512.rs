@@ -12,6 +12,14 @@
 
 use std::arch::x86_64::*;
 
+/// `log2(e)`: `exp` here and in `math.rs` computes `2^(x log2 e)`.
+pub(super) const LOG2E: f32 = std::f32::consts::LOG2_E;
+
+/// `1.5 * 2^23`: adding it to a float below 2^22 in magnitude rounds that float to an
+/// integer held in the low mantissa bits (no float-to-int conversion, which has no
+/// saturating vector form). Shared with `math.rs`'s scalar twin.
+pub(super) const ROUND: f32 = 12_582_912.0;
+
 /// Whether this CPU runs these kernels (checked once).
 pub fn available() -> bool {
     static YES: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -29,11 +37,8 @@ unsafe fn set(x: f32) -> __m512 {
 #[inline(always)]
 unsafe fn exp(x: __m512) -> __m512 {
     let x = _mm512_min_ps(_mm512_max_ps(x, set(-87.3)), set(88.3));
-    let t = _mm512_add_ps(
-        _mm512_mul_ps(x, set(super::math::LOG2E)),
-        set(super::math::ROUND),
-    );
-    let n = _mm512_sub_ps(t, set(super::math::ROUND));
+    let t = _mm512_add_ps(_mm512_mul_ps(x, set(LOG2E)), set(ROUND));
+    let n = _mm512_sub_ps(t, set(ROUND));
     let r = _mm512_sub_ps(
         _mm512_sub_ps(x, _mm512_mul_ps(n, set(0.693_359_4))),
         _mm512_mul_ps(n, set(-2.121_944_4e-4)),
@@ -47,7 +52,7 @@ unsafe fn exp(x: __m512) -> __m512 {
     let y = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(p, z), r), set(1.0));
     let bits = _mm512_sub_epi32(
         _mm512_castps_si512(t),
-        _mm512_set1_epi32(super::math::ROUND.to_bits() as i32),
+        _mm512_set1_epi32(ROUND.to_bits() as i32),
     );
     let pow2 = _mm512_slli_epi32::<23>(_mm512_add_epi32(bits, _mm512_set1_epi32(127)));
     _mm512_mul_ps(y, _mm512_castsi512_ps(pow2))

@@ -8,12 +8,7 @@
 //! below |x| = 0.625 and `1 - 2 / (exp(2x) + 1)` above. The tests hold each to the
 //! standard library within 1e-6 relative (absolute near 0).
 
-pub(super) const LOG2E: f32 = std::f32::consts::LOG2_E;
-
-/// `1.5 * 2^23`: adding it to a float below 2^22 in magnitude rounds that float to an
-/// integer held in the low mantissa bits (no float-to-int conversion, which has no
-/// saturating vector form).
-pub(super) const ROUND: f32 = 12_582_912.0;
+use super::avx512::{LOG2E, ROUND};
 
 /// `e^x` (Cephes `expf`), inputs clamped to `[-87.3, 88.3]`.
 #[inline(always)]

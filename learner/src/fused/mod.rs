@@ -53,7 +53,7 @@ pub mod terms;
 #[cfg(test)]
 mod tests;
 
-use crate::train::Nets;
+use crate::train::nets::{Discriminator, Mlp as TchMlp, Policy};
 use crate::train::optim::Adam;
 use ess_proto::TrainConfig;
 use tch::{Kind, Tensor, nn};
@@ -147,7 +147,7 @@ fn linear(opt: &Adam, lin: &nn::Linear) -> Result<mlp::Linear, FusedError> {
     }
 }
 
-fn mlp_of(opt: &Adam, m: &crate::train::nets::Mlp) -> Result<mlp::Mlp, FusedError> {
+fn mlp_of(opt: &Adam, m: &TchMlp) -> Result<mlp::Mlp, FusedError> {
     Ok(mlp::Mlp {
         layers: m
             .layers()
@@ -175,11 +175,29 @@ pub struct Fused {
     pub reward: reward::RewardPass,
 }
 
+/// The networks and optimisers the fused passes run on, borrowed from the run's
+/// (`crate::train::Nets::fused_view`): the backend reads their layouts, not the run.
+#[derive(Clone, Copy)]
+pub struct NetsView<'a> {
+    /// D's body and heads.
+    pub disc: &'a Discriminator,
+    /// Their optimiser.
+    pub dopt: &'a Adam,
+    /// The policy.
+    pub policy: &'a Policy,
+    /// The value network.
+    pub value: &'a TchMlp,
+    /// The policy's and value's optimiser.
+    pub opt: &'a Adam,
+    /// The p(c) logits' optimiser.
+    pub prior_opt: &'a Adam,
+}
+
 impl Fused {
-    /// The backend for `nets`, on `threads` threads.
-    pub fn new(nets: &Nets, threads: usize) -> Result<Self, FusedError> {
-        let d = &nets.disc;
-        let dopt = &nets.dopt;
+    /// The backend for the networks of `nets`, on `threads` threads.
+    pub fn new(nets: NetsView<'_>, threads: usize) -> Result<Self, FusedError> {
+        let d = nets.disc;
+        let dopt = nets.dopt;
         let disc_net = disc::DiscNet {
             body: mlp_of(dopt, &d.body)?,
             heads: [
@@ -189,15 +207,15 @@ impl Fused {
             ],
             k: d.qc.ws.size()[0] as usize,
         };
-        let (pol, opt) = (&nets.ppo.policy, &nets.ppo.opt);
+        let (pol, opt) = (nets.policy, nets.opt);
         let policy = ppo::PolicyNet {
             mean: mlp_of(opt, &pol.mean)?,
             log_std: opt.offset_of(&pol.log_std).ok_or_else(|| {
                 FusedError::Layout("log_std outside the policy's optimiser".into())
             })?,
-            value: mlp_of(opt, &nets.ppo.value)?,
+            value: mlp_of(opt, nets.value)?,
         };
-        if nets.ppo.prior_opt.len() != disc_net.k {
+        if nets.prior_opt.len() != disc_net.k {
             return Err(FusedError::Layout(
                 "p(c)'s optimiser holds more than its logits".into(),
             ));

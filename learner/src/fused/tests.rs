@@ -330,7 +330,7 @@ fn disc_step(cfg: &CheckedConfig, d: Dims, a: &mut Nets, b: &mut Nets, worst: &m
         0
     };
     let noise = randn(&[n_con as i64, inp]) * w.contrastive_noise;
-    let mut f = Fused::new(b, 2).expect("fused");
+    let mut f = Fused::new(b.fused_view(), 2).expect("fused");
     let (gi, ei, li) = (
         Vec::<i64>::try_from(&gi).unwrap(),
         Vec::<i64>::try_from(&ei).unwrap(),
@@ -429,7 +429,7 @@ fn ppo_step(d: Dims, a: &mut Nets, b: &mut Nets, worst: &mut Vec<Row>) {
     let mut ra = rand_chacha::ChaCha8Rng::seed_from_u64(9);
     let mut rb = ra.clone();
     let sa = a.ppo.update(&batch, &mut ra);
-    let mut f = Fused::new(b, 2).expect("fused");
+    let mut f = Fused::new(b.fused_view(), 2).expect("fused");
     let sb = b
         .ppo
         .update_on(&batch, &mut rb, Some(&mut f))
@@ -487,7 +487,7 @@ fn rewards(cfg: &CheckedConfig, d: Dims, b: &mut Nets, worst: &mut Vec<Row>) {
         );
         (tensor_to_vec(&r), tensor_to_vec(&b.ppo.values(&vin)))
     });
-    let f = Fused::new(b, 2).expect("fused");
+    let f = Fused::new(b.fused_view(), 2).expect("fused");
     let inputs = RewardInputs {
         disc_x: floats(&x).unwrap(),
         code: floats(&code).unwrap(),

@@ -5,7 +5,7 @@ use super::wire::{
     Assign, HOST_TOKENS, LEARNER_TOKEN, Rpc, decode_chunk, parse_host_token, rpc_key,
 };
 use super::{LEARNER_FIELDS, RemoteError, Side, learner_tls, session_config, zerr};
-use crate::train::actor_seed;
+use ess_actor::actor_seed;
 use ess_actor::shm::weights_msg;
 use ess_actor::{ActorError, EvalRunner, PolicyWeights, RolloutSource, split_steps};
 use ess_proto::Chunk;

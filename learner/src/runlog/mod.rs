@@ -31,94 +31,27 @@
 //! evaluation, and continues writing, so a resumed run's log reads like an
 //! uninterrupted one.
 
+mod read;
+mod record;
 pub mod replay;
 pub mod scene;
+
+pub use read::{Logged, MAX_RECORD_BYTES, RunLogContents, read, read_from};
+pub use record::{
+    CONFIG_TOPIC, EVAL_EPISODE_TOPIC, EVAL_STEP_TOPIC, LogOptions, METRICS_TOPIC, Record, TOPICS,
+    TRAINING_CHUNK_TOPIC, config_record, episode_records,
+};
+use record::{PROTOBUF, chunk_record};
 
 use crate::train::IterationLog;
 use ess_actor::EvalEpisode;
 use ess_envs::scene::Scene;
-use ess_proto::config::LatentPrior;
-use ess_proto::{CheckedConfig, Chunk, FILE_DESCRIPTOR_SET, pb};
+use ess_proto::{CheckedConfig, Chunk, FILE_DESCRIPTOR_SET};
 use prost::Message as _;
 use std::collections::{BTreeMap, HashSet};
 use std::fs::File;
-use std::io::{BufWriter, Read, Write};
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-
-/// Topic of the resolved configuration ([`pb::RunConfig`]).
-pub const CONFIG_TOPIC: &str = "/config";
-/// Topic of the per-iteration metrics ([`pb::IterationMetrics`]).
-pub const METRICS_TOPIC: &str = "/metrics";
-/// Topic of the evaluation episodes' start records ([`pb::EvalEpisode`]).
-pub const EVAL_EPISODE_TOPIC: &str = "/eval/episode";
-/// Topic of the evaluation episodes' steps ([`pb::EvalStep`]).
-pub const EVAL_STEP_TOPIC: &str = "/eval/step";
-/// Topic of the sampled training chunks ([`pb::TrainingChunk`]).
-pub const TRAINING_CHUNK_TOPIC: &str = "/train/chunk";
-
-/// Each topic with the full name of its protobuf message, in channel order.
-pub const TOPICS: [(&str, &str); 5] = [
-    (CONFIG_TOPIC, "ess.v1.RunConfig"),
-    (METRICS_TOPIC, "ess.v1.IterationMetrics"),
-    (EVAL_EPISODE_TOPIC, "ess.v1.EvalEpisode"),
-    (EVAL_STEP_TOPIC, "ess.v1.EvalStep"),
-    (TRAINING_CHUNK_TOPIC, "ess.v1.TrainingChunk"),
-];
-
-const PROTOBUF: &str = "protobuf";
-
-/// One message of the run log.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Record {
-    /// `/config`.
-    Config(pb::RunConfig),
-    /// `/metrics`.
-    Metrics(pb::IterationMetrics),
-    /// `/eval/episode`.
-    EvalEpisode(pb::EvalEpisode),
-    /// `/eval/step`.
-    EvalStep(pb::EvalStep),
-    /// `/train/chunk`.
-    TrainingChunk(pb::TrainingChunk),
-}
-
-impl Record {
-    /// Index into [`TOPICS`].
-    fn kind(&self) -> usize {
-        match self {
-            Record::Config(_) => 0,
-            Record::Metrics(_) => 1,
-            Record::EvalEpisode(_) => 2,
-            Record::EvalStep(_) => 3,
-            Record::TrainingChunk(_) => 4,
-        }
-    }
-
-    /// The topic the record is written on.
-    pub fn topic(&self) -> &'static str {
-        TOPICS[self.kind()].0
-    }
-
-    fn encode(&self) -> Vec<u8> {
-        match self {
-            Record::Config(m) => m.encode_to_vec(),
-            Record::Metrics(m) => m.encode_to_vec(),
-            Record::EvalEpisode(m) => m.encode_to_vec(),
-            Record::EvalStep(m) => m.encode_to_vec(),
-            Record::TrainingChunk(m) => m.encode_to_vec(),
-        }
-    }
-
-    fn decode(kind: usize, data: &[u8]) -> Result<Self, prost::DecodeError> {
-        Ok(match kind {
-            0 => Record::Config(pb::RunConfig::decode(data)?),
-            1 => Record::Metrics(pb::IterationMetrics::decode(data)?),
-            2 => Record::EvalEpisode(pb::EvalEpisode::decode(data)?),
-            3 => Record::EvalStep(pb::EvalStep::decode(data)?),
-            _ => Record::TrainingChunk(pb::TrainingChunk::decode(data)?),
-        })
-    }
-}
 
 /// Errors of writing and reading run logs; each names the file.
 #[derive(Debug, thiserror::Error)]
@@ -179,45 +112,6 @@ pub enum RunLogError {
         #[source]
         source: prost::DecodeError,
     },
-}
-
-/// What the run log records, taken from the config once.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct LogOptions {
-    /// `run.log_chunks_every` (0: no chunks).
-    pub chunks_every: usize,
-    /// `run.log_chunk_steps`.
-    pub chunk_steps: usize,
-    /// `run.log_periodic_evals`.
-    pub periodic_evals: bool,
-    /// Latent codes K (width of `EvalStep.c`).
-    pub n_codes: usize,
-    /// Whether the policy gets a one-hot `c` in evaluation (not for `prior = "none"`).
-    pub one_hot: bool,
-}
-
-impl LogOptions {
-    /// The options `cfg` asks for.
-    pub fn of(cfg: &CheckedConfig) -> Self {
-        Self {
-            chunks_every: cfg.run.log_chunks_every,
-            chunk_steps: cfg.run.log_chunk_steps,
-            periodic_evals: cfg.run.log_periodic_evals,
-            n_codes: cfg.env.n_modes,
-            one_hot: cfg.method.prior != LatentPrior::None,
-        }
-    }
-}
-
-/// The `/config` record of `cfg`.
-pub fn config_record(cfg: &CheckedConfig) -> pb::RunConfig {
-    pb::RunConfig {
-        toml: cfg.to_toml(),
-        method: cfg.method.name.clone(),
-        env: cfg.env.name.clone(),
-        n_modes: cfg.env.n_modes as u32,
-        seed: cfg.run.seed,
-    }
 }
 
 type McapWriter = mcap::Writer<BufWriter<File>>;
@@ -438,7 +332,7 @@ impl RunLog {
 
     /// Logs one iteration's metrics on `/metrics` and flushes.
     pub fn iteration(&mut self, log: &IterationLog) -> Result<(), RunLogError> {
-        self.record(&Record::Metrics(crate::progress::iteration_metrics(log)))?;
+        self.record(&Record::Metrics(log.metrics()))?;
         self.flush()
     }
 
@@ -583,231 +477,10 @@ impl Drop for RunLog {
     }
 }
 
-/// The `/eval/episode` record of `ep` followed by its `/eval/step` records.
-pub fn episode_records(
-    id: u32,
-    iteration: usize,
-    final_eval: bool,
-    ep: &EvalEpisode,
-    options: &LogOptions,
-) -> Vec<Record> {
-    let t = ep.len();
-    let od = ep.obs.len().checked_div(t).unwrap_or(ep.start_obs.len());
-    let ad = ep.act.len().checked_div(t).unwrap_or(0);
-    let k = ep.n_modes.max(1);
-    let sd = ep.state_dim;
-    let mut c = vec![0.0f32; options.n_codes];
-    if options.one_hot
-        && let Some(x) = c.get_mut(ep.code)
-    {
-        *x = 1.0;
-    }
-    let mut out = Vec::with_capacity(t + 1);
-    out.push(Record::EvalEpisode(pb::EvalEpisode {
-        episode: id,
-        iteration: iteration as u32,
-        final_eval,
-        code: ep.code as u32,
-        eps: ep.eps,
-        reset_seed: ep.reset_seed,
-        start_state: ep.start_state.clone(),
-        start_obs: ep.start_obs.clone(),
-        length: t as u32,
-        mode_returns: (0..ep.n_modes)
-            .map(|m| f64::from(ep.mode_return(m)))
-            .collect(),
-        obs_dim: od as u32,
-        act_dim: ad as u32,
-    }));
-    let rows = |v: &[f32], w: usize, i: usize| v.get(i * w..(i + 1) * w).unwrap_or(&[]).to_vec();
-    for i in 0..t {
-        out.push(Record::EvalStep(pb::EvalStep {
-            episode: id,
-            step: i as u32,
-            obs: rows(&ep.obs, od, i),
-            action: rows(&ep.act, ad, i),
-            c: c.clone(),
-            eps: ep.eps,
-            mode_rewards: rows(&ep.mode_rewards, k, i),
-            next_obs: rows(&ep.next_obs, od, i),
-            state: ep.states.get(i * sd..(i + 1) * sd).unwrap_or(&[]).to_vec(),
-            done: i + 1 == t,
-        }));
-    }
-    out
-}
-
-/// The first `n` steps of `c` as a `/train/chunk` record.
-fn chunk_record(
-    iteration: usize,
-    actor: usize,
-    c: &Chunk,
-    n: usize,
-    rewards: Option<&[f32]>,
-) -> pb::TrainingChunk {
-    let take = |v: &[f32], w: usize| v[..(n * w).min(v.len())].to_vec();
-    pb::TrainingChunk {
-        iteration: iteration as u32,
-        policy_version: c.policy_version,
-        actor: actor as u32,
-        len: n as u32,
-        obs_dim: c.obs_dim as u32,
-        act_dim: c.act_dim as u32,
-        n_codes: c.n_codes as u32,
-        obs: take(&c.obs, c.obs_dim),
-        act: take(&c.act, c.act_dim),
-        code: take(&c.code, c.n_codes),
-        gumbel: take(&c.gumbel, c.n_codes),
-        eps: take(&c.eps, 1),
-        reward: rewards.map(<[f32]>::to_vec).unwrap_or_default(),
-        done: c
-            .terminated
-            .iter()
-            .zip(&c.truncated)
-            .take(n)
-            .map(|(a, b)| *a || *b)
-            .collect(),
-        logp: take(&c.logp, 1),
-        next_obs: take(&c.next_obs, c.obs_dim),
-    }
-}
-
-/// One message read back, with its log time.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Logged {
-    /// Log time (ns since the Unix epoch).
-    pub log_time: u64,
-    /// The message.
-    pub record: Record,
-}
-
-/// Everything [`read`] could recover from a run log.
-#[derive(Debug, Clone, Default)]
-pub struct RunLogContents {
-    /// Every complete message in file order.
-    pub records: Vec<Logged>,
-    /// Why reading stopped before the end of a complete file (a truncated or damaged
-    /// file: everything before the first unreadable record is in `records`); `None`
-    /// for an intact file.
-    pub truncated: Option<String>,
-    /// Messages on topics this version does not know (skipped).
-    pub unknown: usize,
-}
-
-impl RunLogContents {
-    /// The records without their times.
-    pub fn messages(&self) -> impl Iterator<Item = &Record> {
-        self.records.iter().map(|l| &l.record)
-    }
-
-    /// The last `/config` record.
-    pub fn config(&self) -> Option<&pb::RunConfig> {
-        self.records.iter().rev().find_map(|l| match &l.record {
-            Record::Config(c) => Some(c),
-            _ => None,
-        })
-    }
-}
-
-/// The longest record (or decompressed chunk) the reader accepts. The largest Ess
-/// writes is a `/train/chunk` sample: well under 1 MiB even for Humanoid.
-pub const MAX_RECORD_BYTES: usize = 256 << 20;
-
-/// Reads the run log at `path`, streaming, and returns every complete message; a
-/// truncated file is no error (see [`RunLogContents::truncated`]). Errors: the file
-/// cannot be opened, does not start with the MCAP magic, has a known topic with a
-/// foreign schema, or a complete message that does not decode.
-pub fn read(path: &Path) -> Result<RunLogContents, RunLogError> {
-    let file = File::open(path).map_err(|source| RunLogError::Io {
-        path: path.to_path_buf(),
-        what: "opening the run log",
-        source,
-    })?;
-    read_from(path, std::io::BufReader::new(file))
-}
-
-/// [`read`] over any reader; `path` names it in errors.
-pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, RunLogError> {
-    let io = |source| RunLogError::Io {
-        path: path.to_path_buf(),
-        what: "reading the run log",
-        source,
-    };
-    let mut head = Vec::with_capacity(mcap::MAGIC.len());
-    (&mut source)
-        .take(mcap::MAGIC.len() as u64)
-        .read_to_end(&mut head)
-        .map_err(io)?;
-    if !mcap::MAGIC.starts_with(&head) {
-        return Err(RunLogError::NotMcap {
-            path: path.to_path_buf(),
-        });
-    }
-    let mut out = RunLogContents::default();
-    if head.len() < mcap::MAGIC.len() {
-        out.truncated = Some(format!("the file ends after {} bytes", head.len()));
-        return Ok(out);
-    }
-    // A corrupt length field must be an error, not an allocation of exabytes (which
-    // aborts the process): no record Ess writes comes near the limit.
-    let options =
-        mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(MAX_RECORD_BYTES);
-    let reader = mcap::io::MessageReader::new_with_options(
-        std::io::Cursor::new(head).chain(source),
-        options,
-    );
-    for (index, msg) in reader.enumerate() {
-        let msg = match msg {
-            Ok(m) => m,
-            Err(e) => {
-                out.truncated = Some(e.to_string());
-                break;
-            }
-        };
-        let ch = &msg.channel;
-        let Some(kind) = TOPICS.iter().position(|(t, _)| *t == ch.topic) else {
-            // The 3D scene is for viewers; Ess reads nothing back from it.
-            if !scene::SCENE_TOPICS.iter().any(|(t, _)| *t == ch.topic) {
-                out.unknown += 1;
-            }
-            continue;
-        };
-        let expected = TOPICS[kind].1;
-        let (found, schema_encoding) = ch
-            .schema
-            .as_ref()
-            .map(|s| (s.name.clone(), s.encoding.clone()))
-            .unwrap_or_default();
-        if found != expected || schema_encoding != PROTOBUF || ch.message_encoding != PROTOBUF {
-            return Err(RunLogError::WrongSchema {
-                path: path.to_path_buf(),
-                topic: ch.topic.clone(),
-                found: ess_proto::text::printable(&format!(
-                    "schema `{found}` (schema encoding `{schema_encoding}`, message encoding `{}`)",
-                    ch.message_encoding
-                ))
-                .into_owned(),
-                expected,
-            });
-        }
-        let record = Record::decode(kind, &msg.data).map_err(|source| RunLogError::Decode {
-            path: path.to_path_buf(),
-            topic: ch.topic.clone(),
-            index,
-            schema: expected,
-            source,
-        })?;
-        out.records.push(Logged {
-            log_time: msg.log_time,
-            record,
-        });
-    }
-    Ok(out)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ess_proto::pb;
     use proptest::prelude::*;
 
     fn opts() -> LogOptions {
@@ -1053,7 +726,7 @@ mod tests {
             nmi: Some(0.9),
             ..Default::default()
         };
-        let m = crate::progress::iteration_metrics(&l);
+        let m = l.metrics();
         assert_eq!((m.iteration, m.env_steps), (7, 700));
         assert_eq!((m.wall_s, m.disc_bce, m.rim_kl), (1.5, 0.6, 0.01));
         assert_eq!(m.prior, vec![0.25, 0.75]);
@@ -1149,12 +822,13 @@ mod tests {
                 want.extend(episode_of(0, 2, false));
             }
         }
-        want.push(Record::Metrics(crate::progress::iteration_metrics(
-            &IterationLog {
+        want.push(Record::Metrics(
+            IterationLog {
                 iteration: 4,
                 ..Default::default()
-            },
-        )));
+            }
+            .metrics(),
+        ));
         assert_eq!(got[..want.len()], want[..]);
         // The new final evaluation continues the episode numbering after the kept one.
         match &got[want.len()] {

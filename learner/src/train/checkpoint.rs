@@ -333,3 +333,16 @@ pub fn load(
     }
     Ok(state)
 }
+
+/// The actors' states for a checkpoint; none only when a snapshot failed (an actor lost
+/// during it: logged, and `--resume` says so).
+pub(super) fn actor_states(actors: &mut dyn ess_actor::RolloutSource) -> Vec<SavedWorker> {
+    match actors.snapshot() {
+        Ok(Some(states)) => states.iter().map(Into::into).collect(),
+        Ok(None) => Vec::new(),
+        Err(e) => {
+            tracing::warn!(error = %e, "checkpoint without actor states");
+            Vec::new()
+        }
+    }
+}

@@ -3,13 +3,45 @@
 
 use super::records::EncoderAccuracy;
 use crate::train::nets::{Discriminator, tensor_2d};
-use anyhow::Result;
+use anyhow::{Result, bail};
+use ess_actor::{PolicyWeights, RolloutSource};
 use ess_envs::{DemoSpec, Demos, generate_demos};
 use ess_proto::{CheckedConfig, Chunk};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
+use std::sync::Arc;
 use tch::Tensor;
+
+/// A configuration that the env it names cannot take; the CLI exits 2 on it.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainInputError {
+    /// A `[remote]` file (CA, certificate, key) that cannot serve.
+    #[error("{0}")]
+    RemoteTls(String),
+    /// `disc.obs_prefix` longer than the observation.
+    #[error("disc.obs_prefix = {prefix} exceeds env `{env}`'s observation length {obs_dim}")]
+    DiscObsPrefix {
+        /// The configured prefix.
+        prefix: usize,
+        /// The env's name.
+        env: String,
+        /// Its observation length.
+        obs_dim: usize,
+    },
+    /// A task file has no experts to generate demonstrations with.
+    #[error(
+        "env `{env}` is a task file: it has no experts to generate demonstrations with; set \
+         demos.path to a file written by `ess demos import`"
+    )]
+    TaskNeedsDemos {
+        /// The env's name.
+        env: String,
+    },
+    /// The demonstrations file does not fit the configured env.
+    #[error("{0}")]
+    DemosMismatch(String),
+}
 
 /// The dataset a configuration asks for.
 pub fn demo_spec(cfg: &CheckedConfig) -> DemoSpec {
@@ -31,7 +63,7 @@ pub fn load_or_generate_demos(cfg: &CheckedConfig) -> Result<Demos> {
         let path = PathBuf::from(&cfg.demos.path);
         let d = Demos::load(&path)?;
         if d.meta.env != cfg.env.name || d.meta.n_modes != cfg.env.n_modes {
-            return Err(super::setup::TrainInputError::DemosMismatch(format!(
+            return Err(TrainInputError::DemosMismatch(format!(
                 "{}: dataset is for env `{}` with {} modes, config asks env.name = `{}`, env.n_modes = {}",
                 path.display(),
                 d.meta.env,
@@ -255,6 +287,24 @@ impl CodeReweight {
 /// `batch` indices drawn uniformly from `0..n`.
 pub fn sample_idx(rng: &mut ChaCha8Rng, n: i64, batch: i64) -> Vec<i64> {
     (0..batch).map(|_| rng.random_range(0..n.max(1))).collect()
+}
+
+/// `steps` transitions from `actors` under `weights`, every chunk checked to come
+/// from them.
+pub fn gather(
+    actors: &mut dyn RolloutSource,
+    weights: Arc<PolicyWeights>,
+    steps: usize,
+) -> Result<Vec<Chunk>> {
+    let version = weights.version;
+    let chunks = actors.collect(weights, steps)?;
+    if let Some(c) = chunks.iter().find(|c| c.policy_version != version) {
+        bail!(
+            "chunk of policy version {} where version {version} was asked for",
+            c.policy_version
+        );
+    }
+    Ok(chunks)
 }
 
 #[cfg(test)]

@@ -28,12 +28,16 @@ mod records;
 pub(crate) mod setup;
 mod stages;
 
+pub use data::TrainInputError;
 pub use data::{
     CodeReweight, Dims, ExpertData, ObsNorm, Rollout, demo_spec, load_or_generate_demos,
 };
+pub use ess_actor::actor_seed;
 pub use ess_proto::config::Backend;
-pub use records::{CSV_HEADER, EncoderAccuracy, IterationLog, PhaseSeconds, Summary, write_atomic};
-pub use setup::{Nets, TrainInputError, actor_seed};
+pub use records::{
+    CSV_HEADER, EncoderAccuracy, IterationLog, PhaseSeconds, Progress, Summary, write_atomic,
+};
+pub use setup::Nets;
 pub use stages::Rewards;
 
 use crate::eval::Reference;
@@ -49,14 +53,6 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-
-/// What a caller sees of progress (the CLI draws a bar or prints lines).
-pub trait Progress {
-    /// Called after each iteration.
-    fn iteration(&mut self, it: &IterationLog);
-    /// Free-form status message (set-up phases).
-    fn message(&mut self, msg: &str);
-}
 
 /// Everything `run` produced.
 pub struct RunOutput {
@@ -274,12 +270,12 @@ impl Trainer<'_> {
     ) -> Result<()> {
         let weights = Arc::new(self.weights(it as u64)?);
         let mut actors = self.actors.take().context("the actors are collecting")?;
-        let before = setup::actor_states(actors.as_mut());
+        let before = checkpoint::actor_states(actors.as_mut());
         let steps = self.cfg.run.rollout_steps;
         let (updated, joined) = std::thread::scope(|s| {
             let w = weights.clone();
             let collector = s.spawn(move || {
-                let chunks = stages::gather(actors.as_mut(), w, steps);
+                let chunks = data::gather(actors.as_mut(), w, steps);
                 (actors, chunks)
             });
             let updated = self.update(it, rollout, log);
@@ -381,7 +377,7 @@ impl Trainer<'_> {
                 let w = ess_actor::shm::weights_msg(&p.weights, &self.latent, "");
                 state.behaviour = Some(w);
             }
-            None => state.actors = setup::actor_states(self.actors()?),
+            None => state.actors = checkpoint::actor_states(self.actors()?),
         }
         let n = &self.nets;
         crate::train::checkpoint::save(

@@ -2,9 +2,18 @@
 //! the run log, the progress stream) and the [`Summary`] (`summary.json`).
 
 use anyhow::{Context, Result};
+use ess_proto::pb;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::Path;
+
+/// What a caller sees of progress (the CLI draws a bar or prints lines).
+pub trait Progress {
+    /// Called after each iteration.
+    fn iteration(&mut self, it: &IterationLog);
+    /// Free-form status message (set-up phases).
+    fn message(&mut self, msg: &str);
+}
 
 /// One row of `metrics.csv`: one per iteration, in order. The last iteration's row
 /// carries the final evaluation's `nmi`, `ent` and `normalized_reward` (the periodic
@@ -60,6 +69,45 @@ pub struct IterationLog {
     pub ent: Option<f64>,
     /// Normalised task reward if evaluated.
     pub normalized_reward: Option<f64>,
+}
+
+impl IterationLog {
+    /// The metrics of `log` as `ess.v1.IterationMetrics`: what the progress stream, the
+    /// run log's `/metrics` topic and `WatchJob` carry (the one mapping from
+    /// [`IterationLog`]).
+    pub fn metrics(&self) -> pb::IterationMetrics {
+        let log = self;
+        pb::IterationMetrics {
+            iteration: u32::try_from(log.iteration).unwrap_or(u32::MAX),
+            env_steps: log.env_steps as u64,
+            wall_s: log.wall_s,
+            rollout_s: log.rollout_s,
+            disc_s: log.disc_s,
+            ppo_s: log.ppo_s,
+            disc_bce: log.disc_bce,
+            d_acc_expert: log.d_acc_expert,
+            d_acc_policy: log.d_acc_policy,
+            qc_labeled: log.qc_labeled,
+            qc_generated: log.qc_generated,
+            qeps: log.qeps,
+            rim_entropy: log.rim_entropy,
+            rim_kl: log.rim_kl,
+            contrastive: log.contrastive,
+            reward_mean: log.reward_mean,
+            policy_loss: log.policy_loss,
+            value_loss: log.value_loss,
+            entropy: log.entropy,
+            approx_kl: log.approx_kl,
+            prior: log
+                .prior
+                .split(';')
+                .filter_map(|p| p.trim().parse().ok())
+                .collect(),
+            nmi: log.nmi,
+            ent: log.ent,
+            normalized_reward: log.normalized_reward,
+        }
+    }
 }
 
 /// What `summary.json` holds.

@@ -2,7 +2,7 @@
 //! the latest checkpoint.
 
 use super::bc;
-use super::data::{Dims, ExpertData, ObsNorm, load_or_generate_demos};
+use super::data::{Dims, ExpertData, ObsNorm, TrainInputError, load_or_generate_demos};
 use super::records::{CSV_HEADER, truncate_metrics};
 use super::{LoopState, Progress, Trainer};
 use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
@@ -12,7 +12,7 @@ use crate::train::nets::{Discriminator, obs_columns};
 use crate::train::optim::Adam;
 use crate::train::ppo::PpoLearner;
 use anyhow::{Context, Result, bail};
-use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker};
+use ess_actor::{LatentSpec, PolicyWeights, RolloutSource, ThreadedActors, Worker, actor_seed};
 use ess_envs::demos::UNKNOWN_MODE;
 use ess_envs::{Demos, Env, make_env, make_training_env};
 use ess_proto::CheckedConfig;
@@ -24,42 +24,6 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tch::nn;
-
-/// A configuration that the env it names cannot take; the CLI exits 2 on it.
-#[derive(Debug, thiserror::Error)]
-pub enum TrainInputError {
-    /// A `[remote]` file (CA, certificate, key) that cannot serve.
-    #[error("{0}")]
-    RemoteTls(String),
-    /// `disc.obs_prefix` longer than the observation.
-    #[error("disc.obs_prefix = {prefix} exceeds env `{env}`'s observation length {obs_dim}")]
-    DiscObsPrefix {
-        /// The configured prefix.
-        prefix: usize,
-        /// The env's name.
-        env: String,
-        /// Its observation length.
-        obs_dim: usize,
-    },
-    /// A task file has no experts to generate demonstrations with.
-    #[error(
-        "env `{env}` is a task file: it has no experts to generate demonstrations with; set \
-         demos.path to a file written by `ess demos import`"
-    )]
-    TaskNeedsDemos {
-        /// The env's name.
-        env: String,
-    },
-    /// The demonstrations file does not fit the configured env.
-    #[error("{0}")]
-    DemosMismatch(String),
-}
-
-/// Seed of actor `i`'s random stream: the same on both transports, so one actor process
-/// reproduces one actor thread step for step.
-pub fn actor_seed(seed: u64, i: usize) -> u64 {
-    seed.wrapping_mul(1_000_003).wrapping_add(i as u64)
-}
 
 /// The learner's networks and optimisers: policy and value (`vs`), p(c) (`prior_vs`),
 /// the discriminator body with its heads (`dvs`).
@@ -116,6 +80,18 @@ impl Nets {
             disc,
             dopt,
         })
+    }
+
+    /// What the fused backend reads of these networks.
+    pub fn fused_view(&self) -> crate::fused::NetsView<'_> {
+        crate::fused::NetsView {
+            disc: &self.disc,
+            dopt: &self.dopt,
+            policy: &self.ppo.policy,
+            value: &self.ppo.value,
+            opt: &self.ppo.opt,
+            prior_opt: &self.ppo.prior_opt,
+        }
     }
 }
 
@@ -246,21 +222,6 @@ fn local_rollout_source(
     }
 }
 
-/// The actors' states for a checkpoint; none only when a snapshot failed (an actor lost
-/// during it: logged, and `--resume` says so).
-pub(super) fn actor_states(
-    actors: &mut dyn RolloutSource,
-) -> Vec<crate::train::checkpoint::SavedWorker> {
-    match actors.snapshot() {
-        Ok(Some(states)) => states.iter().map(Into::into).collect(),
-        Ok(None) => Vec::new(),
-        Err(e) => {
-            tracing::warn!(error = %e, "checkpoint without actor states");
-            Vec::new()
-        }
-    }
-}
-
 /// The learner's threads (`run.torch_threads`, 0: one per core).
 fn learner_threads(cfg: &CheckedConfig) -> usize {
     if cfg.run.torch_threads > 0 {
@@ -296,7 +257,10 @@ pub(crate) fn fused_backend(
         progress.message(&msg);
         return Ok(None);
     }
-    Ok(Some(crate::fused::Fused::new(nets, learner_threads(cfg))?))
+    Ok(Some(crate::fused::Fused::new(
+        nets.fused_view(),
+        learner_threads(cfg),
+    )?))
 }
 
 impl LoopState {

@@ -8,9 +8,8 @@ use crate::objective::combined::{DiscBatch, DiscTerms, DiscWeights, disc_objecti
 use crate::objective::reward::{RewardWeights, disc_term, policy_reward};
 use crate::train::nets::{export_policy, tensor_2d, tensor_to_vec};
 use crate::train::ppo::{PpoBatch, rollout_gae};
-use anyhow::{Context, Result, bail};
-use ess_actor::{EvalEpisode, LocalEval, PolicyWeights, RolloutSource};
-use ess_proto::Chunk;
+use anyhow::{Context, Result};
+use ess_actor::{EvalEpisode, LocalEval, PolicyWeights};
 use ess_proto::config::{LatentPrior, RolloutCodes};
 use std::sync::Arc;
 use std::time::Instant;
@@ -79,7 +78,7 @@ impl Trainer<'_> {
             None => Arc::new(self.weights(it as u64)?),
         };
         let steps = self.cfg.run.rollout_steps;
-        let chunks = gather(self.actors()?, weights, steps)?;
+        let chunks = super::data::gather(self.actors()?, weights, steps)?;
         Ok(Rollout::new(chunks, &self.norm, self.dims))
     }
 
@@ -323,24 +322,6 @@ impl Trainer<'_> {
             }
         }
     }
-}
-
-/// `steps` transitions from `actors` under `weights`, every chunk checked to come
-/// from them.
-pub fn gather(
-    actors: &mut dyn RolloutSource,
-    weights: Arc<PolicyWeights>,
-    steps: usize,
-) -> Result<Vec<Chunk>> {
-    let version = weights.version;
-    let chunks = actors.collect(weights, steps)?;
-    if let Some(c) = chunks.iter().find(|c| c.policy_version != version) {
-        bail!(
-            "chunk of policy version {} where version {version} was asked for",
-            c.policy_version
-        );
-    }
-    Ok(chunks)
 }
 
 /// The last D/Q step's losses and accuracies into the iteration's row.

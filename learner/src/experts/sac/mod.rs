@@ -42,9 +42,7 @@
 //! The replay keeps only the observation entries the networks read (`obs_prefix`), raw
 //! (normalised when a batch is drawn).
 
-use std::collections::HashMap;
 use std::io::Write;
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -63,7 +61,7 @@ use crate::experts::{
 use crate::train::nets::{Mlp, tensor_2d, tensor_to_vec};
 
 mod replay;
-use replay::{Replay, gather_norm};
+use replay::{Replay, gather_norm, read_named, write_via_tmp};
 
 /// Replay states whose mean actor log std becomes the exported `log_std`.
 const EXPORT_STATES: usize = 10_000;
@@ -314,20 +312,6 @@ fn save_state(sac: &Sac, stats: &RunningStats, path: &std::path::Path) -> Result
     named.push(("stats/m2".into(), f64s(&stats.m2)));
     named.sort_by(|a, b| a.0.cmp(&b.0));
     write_via_tmp(&named, path, "SAC state")
-}
-
-/// Writes `named` to `path` atomically and with checksums ([`crate::tensor_file`]), so a
-/// stop mid-write leaves the old file; errors name `what` and the file.
-fn write_via_tmp<S: AsRef<str>>(named: &[(S, Tensor)], path: &Path, what: &str) -> Result<()> {
-    crate::tensor_file::save(path, named, HashMap::new()).with_context(|| format!("writing {what}"))
-}
-
-/// Every tensor of the safetensors file at `path` by name, checked against its
-/// checksums; an error says "reading `what`".
-fn read_named(path: &Path, what: &str) -> Result<HashMap<String, Tensor>> {
-    Ok(crate::tensor_file::load(path)
-        .with_context(|| format!("reading {what}"))?
-        .0)
 }
 
 /// Loads what [`save_state`] wrote into `sac` and `stats`; names the file and the

@@ -2,9 +2,9 @@
 //! networks read), saved on stop and loaded on `--resume`, and the normalised gather a
 //! minibatch is drawn with.
 
-use super::{read_named, write_via_tmp};
 use crate::train::nets::tensor_2d;
 use anyhow::{Context, Result, bail};
+use std::collections::HashMap;
 use std::path::Path;
 use tch::{Kind, Tensor};
 
@@ -166,4 +166,22 @@ pub(super) fn gather_norm(
         v.extend(row.iter().zip(mean).zip(std).map(|((x, m), s)| (x - m) / s));
     }
     tensor_2d(&v, p)
+}
+
+/// Writes `named` to `path` atomically and with checksums ([`crate::tensor_file`]), so a
+/// stop mid-write leaves the old file; errors name `what` and the file.
+pub(super) fn write_via_tmp<S: AsRef<str>>(
+    named: &[(S, Tensor)],
+    path: &Path,
+    what: &str,
+) -> Result<()> {
+    crate::tensor_file::save(path, named, HashMap::new()).with_context(|| format!("writing {what}"))
+}
+
+/// Every tensor of the safetensors file at `path` by name, checked against its
+/// checksums; an error says "reading `what`".
+pub(super) fn read_named(path: &Path, what: &str) -> Result<HashMap<String, Tensor>> {
+    Ok(crate::tensor_file::load(path)
+        .with_context(|| format!("reading {what}"))?
+        .0)
 }
