@@ -57,7 +57,9 @@ enum Cmd {
     /// `[remote]` config), over zenoh with mutual TLS.
     ActorHost(cli::actor_host::ActorHostArgs),
     /// Table 1 view of finished runs: a row per run, mean ± std per env and method
-    /// beside the paper's value (Markdown).
+    /// beside the paper's value (Markdown); for Walker2d and Humanoid runs also each
+    /// code's episode length, velocity and normalised reward beside its expert's, and
+    /// `<run>/behaviours.png`.
     Report {
         /// Run directories (each holding a summary.json).
         #[arg(required = true)]
@@ -102,11 +104,7 @@ fn main() {
         Cmd::ActorHost(a) => cli::actor_host::actor_host(a),
         Cmd::Serve(a) => runtime().and_then(|rt| rt.block_on(cli::serve::serve(a))),
         Cmd::Job(a) => runtime().and_then(|rt| rt.block_on(cli::job::job(a))),
-        Cmd::Report { runs } => runs
-            .iter()
-            .map(|d| ess_learner::eval::table::read_run(d).map_err(input_err))
-            .collect::<Result<Vec<_>>>()
-            .map(|rows| print!("{}", ess_learner::eval::table::markdown(&rows))),
+        Cmd::Report { runs } => report(&runs),
         Cmd::Presets => {
             for (name, text) in PRESETS {
                 let doc = text
@@ -141,4 +139,19 @@ fn end_quietly_on_closed_stdout() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+}
+
+/// `ess report`: the Table 1 view, then each moving run's codes beside their experts.
+fn report(runs: &[PathBuf]) -> Result<()> {
+    let rows = runs
+        .iter()
+        .map(|d| ess_learner::eval::table::read_run(d).map_err(input_err))
+        .collect::<Result<Vec<_>>>()?;
+    print!("{}", ess_learner::eval::table::markdown(&rows));
+    for row in &rows {
+        if let Some(md) = ess_learner::runlog::behaviour::section(&row.dir, &row.reward_per_code)? {
+            print!("{md}");
+        }
+    }
+    Ok(())
 }

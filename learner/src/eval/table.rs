@@ -33,6 +33,9 @@ pub struct RunRow {
     pub wall_seconds: f64,
     /// Stopped early.
     pub interrupted: bool,
+    /// Final normalised reward of each code (`eval.normalized_reward_per_code`; empty
+    /// in summaries that predate it).
+    pub reward_per_code: Vec<f64>,
 }
 
 /// A `summary.json` that cannot be used, with the file and the field named.
@@ -103,6 +106,11 @@ pub fn read_run(dir: &Path) -> Result<RunRow, TableError> {
             .get("interrupted")
             .and_then(Value::as_bool)
             .unwrap_or(false),
+        reward_per_code: v
+            .pointer("/eval/normalized_reward_per_code")
+            .and_then(Value::as_array)
+            .map(|a| a.iter().filter_map(Value::as_f64).collect())
+            .unwrap_or_default(),
     })
 }
 

@@ -31,6 +31,7 @@
 //! evaluation, and continues writing, so a resumed run's log reads like an
 //! uninterrupted one.
 
+pub mod behaviour;
 mod read;
 mod record;
 pub mod replay;
