@@ -149,7 +149,8 @@ fn report(runs: &[PathBuf]) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     print!("{}", ess_learner::eval::table::markdown(&rows));
     for row in &rows {
-        if let Some(md) = ess_learner::runlog::behaviour::section(&row.dir, &row.reward_per_code)? {
+        let section = ess_learner::runlog::behaviour::section;
+        if let Some(md) = section(&row.dir, &row.reward_per_code, &row.assignment)? {
             print!("{md}");
         }
     }

@@ -36,6 +36,8 @@ pub struct RunRow {
     /// Final normalised reward of each code (`eval.normalized_reward_per_code`; empty
     /// in summaries that predate it).
     pub reward_per_code: Vec<f64>,
+    /// The mode each code is matched to (`eval.assignment`; empty where absent).
+    pub assignment: Vec<usize>,
 }
 
 /// A `summary.json` that cannot be used, with the file and the field named.
@@ -110,6 +112,15 @@ pub fn read_run(dir: &Path) -> Result<RunRow, TableError> {
             .pointer("/eval/normalized_reward_per_code")
             .and_then(Value::as_array)
             .map(|a| a.iter().filter_map(Value::as_f64).collect())
+            .unwrap_or_default(),
+        assignment: v
+            .pointer("/eval/assignment")
+            .and_then(Value::as_array)
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_u64().map(|m| m as usize))
+                    .collect()
+            })
             .unwrap_or_default(),
     })
 }

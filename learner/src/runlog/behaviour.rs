@@ -176,10 +176,15 @@ pub const EXPERT_EPISODES: usize = 5;
 
 /// `ess report`'s behaviour view of the run in `dir` (its `run.mcap`): a Markdown
 /// table of each code's episode length, forward velocity and normalised reward
-/// (`reward_per_code`, from summary.json) beside its mode's expert, and
+/// (`reward_per_code`, from summary.json) beside the expert of the mode the
+/// evaluation matched it to (`assignment`; the code's own index where absent), and
 /// `<dir>/behaviours.png`. `None` for runs whose env does not move (or whose log has no
 /// final evaluation).
-pub fn section(dir: &Path, reward_per_code: &[f64]) -> anyhow::Result<Option<String>> {
+pub fn section(
+    dir: &Path,
+    reward_per_code: &[f64],
+    assignment: &[usize],
+) -> anyhow::Result<Option<String>> {
     use anyhow::Context as _;
     use std::fmt::Write as _;
     let log = dir.join("run.mcap");
@@ -204,17 +209,18 @@ pub fn section(dir: &Path, reward_per_code: &[f64]) -> anyhow::Result<Option<Str
         "\n### {}: each code beside its mode's expert (final evaluation; experts: {EXPERT_EPISODES} episodes per mode)\n\n",
         dir.display()
     );
-    md.push_str("| code | episodes | length | velocity m/s | norm. reward | expert length | expert velocity m/s |\n|---|---|---|---|---|---|---|\n");
+    md.push_str("| code | episodes | length | velocity m/s | norm. reward | matched mode | expert length | expert velocity m/s |\n|---|---|---|---|---|---|---|---|\n");
     for b in &policy {
         let reward = reward_per_code
             .get(b.index)
             .map_or("-".into(), |r| format!("{r:.3}"));
-        let (el, ev) = expert.get(b.index).map_or(("-".into(), "-".into()), |e| {
+        let mode = assignment.get(b.index).copied().unwrap_or(b.index);
+        let (el, ev) = expert.get(mode).map_or(("-".into(), "-".into()), |e| {
             (format!("{:.0}", e.length), format!("{:+.2}", e.velocity))
         });
         let _ = writeln!(
             md,
-            "| {} | {} | {:.0} | {:+.2} | {reward} | {el} | {ev} |",
+            "| {} | {} | {:.0} | {:+.2} | {reward} | {mode} | {el} | {ev} |",
             b.index, b.episodes, b.length, b.velocity
         );
     }
