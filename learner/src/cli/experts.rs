@@ -72,164 +72,183 @@ pub fn experts(cmd: ExpertsCmd) -> Result<()> {
             resume,
             init_from,
             algo,
-        } => {
-            let cfg = resolve(&config)?;
-            if algo == ExpertAlgo::Sac && init_from.is_some() {
-                // Before the --init-from file checks, which would miss the point.
-                return Err(input_err(
-                    ess_learner::experts::sac::SacInputError::InitFrom,
-                ));
-            }
-            // SAC steps its one env in this process; PPO's actors may be processes.
-            if algo == ExpertAlgo::Ppo
-                && cfg.run.transport == ess_proto::config::ActorTransport::Processes
-            {
-                ess_learner::actors::actor_binary().map_err(input_err)?;
-            }
-            if mode >= cfg.env.n_modes {
-                return Err(input_err(format!(
-                    "--mode {mode} is out of range: env {} has {} modes (0..{})",
-                    cfg.env.name,
-                    cfg.env.n_modes,
-                    cfg.env.n_modes - 1
-                )));
-            }
-            let out = out.unwrap_or_else(|| {
-                ess_envs::expert_path(&ess_envs::experts_dir(), &cfg.env.name, mode)
-            });
-            if resume && !out.exists() {
-                return Err(input_err(format!(
-                    "--resume: no expert file at {}",
-                    out.display()
-                )));
-            }
-            if let Some(src) = &init_from {
-                let state = ess_learner::experts::state_path(src);
-                for (what, p) in [("expert file", src), ("state file", &state)] {
-                    if !p.exists() {
-                        return Err(input_err(format!(
-                            "--init-from: no {what} at {}",
-                            p.display()
-                        )));
-                    }
-                }
-                let fits = || -> Result<()> {
-                    let e = ess_envs::ExpertPolicy::load(src)?;
-                    let env = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes)?;
-                    e.check_fits(env.spec(), e.meta.mode, src)?;
-                    Ok(())
-                };
-                fits().map_err(|e| input_err(format!("--init-from: {e:#}")))?;
-                if src == &out {
-                    return Err(input_err(format!(
-                        "--init-from {} is the --out file; use --resume to continue it",
-                        src.display()
-                    )));
-                }
-            }
-            let tc = ExpertTrainConfig {
-                env: cfg.env.name.clone(),
-                n_modes: cfg.env.n_modes,
-                mode,
-                steps,
-                rollout_steps: cfg.run.rollout_steps,
-                actors: cfg.run.actors,
-                transport: cfg.run.transport,
-                actor_timeout_s: cfg.run.actor_timeout_s,
-                torch_threads: cfg.run.torch_threads.max(1),
-                seed: cfg.run.seed,
-                ppo: cfg.ppo.clone(),
-                out: out.clone(),
-                resume,
-                init_from: init_from.clone(),
-            };
-            let shutdown = ctrl_c_flag()?;
-            eprintln!(
-                "ess: training the {} mode-{mode} expert for {steps} steps -> {}",
-                tc.env,
-                out.display()
-            );
-            let t0 = std::time::Instant::now();
-            let mut last = 0.0;
-            let mut report = |it: &ess_learner::experts::ExpertIteration| {
-                let now = t0.elapsed().as_secs_f64();
-                if now - last >= 5.0 || it.env_steps >= steps {
-                    last = now;
-                    eprintln!(
-                        "iter {:5} {:9} steps {:7.1}s  return {:>10}  length {:>6}  entropy {:.3}",
-                        it.iteration,
-                        it.env_steps,
-                        now,
-                        it.mean_return
-                            .map(|v| format!("{v:.2}"))
-                            .unwrap_or_default(),
-                        it.mean_length
-                            .map(|v| format!("{v:.0}"))
-                            .unwrap_or_default(),
-                        it.entropy
-                    );
-                }
-            };
-            let e = match algo {
-                ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)
-                    .map_err(input_if::<ess_envs::ExpertError>)
-                    .map_err(input_if_corrupt)?,
-                ExpertAlgo::Sac => ess_learner::experts::sac::train_expert_sac(
-                    &tc,
-                    &cfg.sac,
-                    &mut report,
-                    &shutdown,
-                )
-                .map_err(input_if::<ess_learner::experts::sac::SacInputError>)
-                .map_err(input_if::<ess_envs::ExpertError>)
-                .map_err(input_if_corrupt)?,
-            };
-            println!(
-                "expert {} mode {}: {} steps, mean return of the last episodes {:.3} -> {}",
-                e.meta.env,
-                e.meta.mode,
-                e.meta.trained_steps,
-                e.meta.mean_return,
-                out.display()
-            );
-        }
+        } => train(&config, mode, steps, out, resume, init_from, algo),
         ExpertsCmd::Eval {
             config,
             dir,
             episodes,
             json,
-        } => {
-            let cfg = resolve(&config)?;
-            let dir = dir.unwrap_or_else(ess_envs::experts_dir);
-            let plain =
-                ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
-            let env = ess_envs::ExpertEnv::load(plain, &dir).map_err(input_err)?;
-            let experts = env.experts().to_vec();
-            let mut plain =
-                ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
-            let rows = eval_experts(plain.as_mut(), &experts, episodes, cfg.run.seed)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&rows)?);
-            } else {
-                println!(
-                    "| {} mode | expert return | random return | expert ep. length | fwd vel. expert | fwd vel. random | trained steps |",
-                    cfg.env.name
-                );
-                println!("|---|---|---|---|---|---|---|");
-                let v = |x: Option<f64>| x.map(|v| format!("{v:+.2} m/s")).unwrap_or("-".into());
-                for (r, e) in rows.iter().zip(&experts) {
-                    println!(
-                        "| {} | {:.2} | {:.2} | {:.0} | {} | {} | {} |",
-                        r.mode,
-                        r.expert_return,
-                        r.random_return,
-                        r.expert_length,
-                        v(r.forward_velocity),
-                        v(r.random_forward_velocity),
-                        e.meta.trained_steps
-                    );
-                }
-            }
+        } => eval(&config, dir, episodes, json),
+    }
+}
+
+/// `ess experts train`.
+fn train(
+    config: &ConfigArgs,
+    mode: usize,
+    steps: u64,
+    out: Option<PathBuf>,
+    resume: bool,
+    init_from: Option<PathBuf>,
+    algo: ExpertAlgo,
+) -> Result<()> {
+    let cfg = resolve(config)?;
+    if algo == ExpertAlgo::Sac && init_from.is_some() {
+        // Before the --init-from file checks, which would miss the point.
+        return Err(input_err(
+            ess_learner::experts::sac::SacInputError::InitFrom,
+        ));
+    }
+    // SAC steps its one env in this process; PPO's actors may be processes.
+    if algo == ExpertAlgo::Ppo && cfg.run.transport == ess_proto::config::ActorTransport::Processes
+    {
+        ess_learner::actors::actor_binary().map_err(input_err)?;
+    }
+    if mode >= cfg.env.n_modes {
+        return Err(input_err(format!(
+            "--mode {mode} is out of range: env {} has {} modes (0..{})",
+            cfg.env.name,
+            cfg.env.n_modes,
+            cfg.env.n_modes - 1
+        )));
+    }
+    let out =
+        out.unwrap_or_else(|| ess_envs::expert_path(&ess_envs::experts_dir(), &cfg.env.name, mode));
+    if resume && !out.exists() {
+        return Err(input_err(format!(
+            "--resume: no expert file at {}",
+            out.display()
+        )));
+    }
+    if let Some(src) = &init_from {
+        check_init_from(&cfg, src, &out)?;
+    }
+    let tc = ExpertTrainConfig {
+        env: cfg.env.name.clone(),
+        n_modes: cfg.env.n_modes,
+        mode,
+        steps,
+        rollout_steps: cfg.run.rollout_steps,
+        actors: cfg.run.actors,
+        transport: cfg.run.transport,
+        actor_timeout_s: cfg.run.actor_timeout_s,
+        torch_threads: cfg.run.torch_threads.max(1),
+        seed: cfg.run.seed,
+        ppo: cfg.ppo.clone(),
+        out: out.clone(),
+        resume,
+        init_from: init_from.clone(),
+    };
+    let shutdown = ctrl_c_flag()?;
+    eprintln!(
+        "ess: training the {} mode-{mode} expert for {steps} steps -> {}",
+        tc.env,
+        out.display()
+    );
+    let t0 = std::time::Instant::now();
+    let mut last = 0.0;
+    let mut report = |it: &ess_learner::experts::ExpertIteration| {
+        let now = t0.elapsed().as_secs_f64();
+        if now - last >= 5.0 || it.env_steps >= steps {
+            last = now;
+            eprintln!(
+                "iter {:5} {:9} steps {:7.1}s  return {:>10}  length {:>6}  entropy {:.3}",
+                it.iteration,
+                it.env_steps,
+                now,
+                it.mean_return
+                    .map(|v| format!("{v:.2}"))
+                    .unwrap_or_default(),
+                it.mean_length
+                    .map(|v| format!("{v:.0}"))
+                    .unwrap_or_default(),
+                it.entropy
+            );
+        }
+    };
+    let e = match algo {
+        ExpertAlgo::Ppo => train_expert(&tc, &mut report, &shutdown)
+            .map_err(input_if::<ess_envs::ExpertError>)
+            .map_err(input_if_corrupt)?,
+        ExpertAlgo::Sac => {
+            ess_learner::experts::sac::train_expert_sac(&tc, &cfg.sac, &mut report, &shutdown)
+                .map_err(input_if::<ess_learner::experts::sac::SacInputError>)
+                .map_err(input_if::<ess_envs::ExpertError>)
+                .map_err(input_if_corrupt)?
+        }
+    };
+    println!(
+        "expert {} mode {}: {} steps, mean return of the last episodes {:.3} -> {}",
+        e.meta.env,
+        e.meta.mode,
+        e.meta.trained_steps,
+        e.meta.mean_return,
+        out.display()
+    );
+    Ok(())
+}
+
+/// `--init-from SRC`: the expert and its state file exist, fit the env, and are not
+/// the `--out` file.
+fn check_init_from(
+    cfg: &ess_proto::CheckedConfig,
+    src: &std::path::Path,
+    out: &std::path::Path,
+) -> Result<()> {
+    let state = ess_learner::experts::state_path(src);
+    for (what, p) in [("expert file", src), ("state file", &state)] {
+        if !p.exists() {
+            return Err(input_err(format!(
+                "--init-from: no {what} at {}",
+                p.display()
+            )));
+        }
+    }
+    let fits = || -> Result<()> {
+        let e = ess_envs::ExpertPolicy::load(src)?;
+        let env = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes)?;
+        e.check_fits(env.spec(), e.meta.mode, src)?;
+        Ok(())
+    };
+    fits().map_err(|e| input_err(format!("--init-from: {e:#}")))?;
+    if src == out {
+        return Err(input_err(format!(
+            "--init-from {} is the --out file; use --resume to continue it",
+            src.display()
+        )));
+    }
+    Ok(())
+}
+
+/// `ess experts eval`.
+fn eval(config: &ConfigArgs, dir: Option<PathBuf>, episodes: usize, json: bool) -> Result<()> {
+    let cfg = resolve(config)?;
+    let dir = dir.unwrap_or_else(ess_envs::experts_dir);
+    let plain = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
+    let env = ess_envs::ExpertEnv::load(plain, &dir).map_err(input_err)?;
+    let experts = env.experts().to_vec();
+    let mut plain = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).map_err(input_err)?;
+    let rows = eval_experts(plain.as_mut(), &experts, episodes, cfg.run.seed)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        println!(
+            "| {} mode | expert return | random return | expert ep. length | fwd vel. expert | fwd vel. random | trained steps |",
+            cfg.env.name
+        );
+        println!("|---|---|---|---|---|---|---|");
+        let v = |x: Option<f64>| x.map(|v| format!("{v:+.2} m/s")).unwrap_or("-".into());
+        for (r, e) in rows.iter().zip(&experts) {
+            println!(
+                "| {} | {:.2} | {:.2} | {:.0} | {} | {} | {} |",
+                r.mode,
+                r.expert_return,
+                r.random_return,
+                r.expert_length,
+                v(r.forward_velocity),
+                v(r.random_forward_velocity),
+                e.meta.trained_steps
+            );
         }
     }
     Ok(())

@@ -213,7 +213,12 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }
-    let s = &result.summary;
+    print_result(&result.summary, &out);
+    Ok(())
+}
+
+/// The result block `ess train` prints on stdout.
+fn print_result(s: &ess_learner::train::Summary, out: &std::path::Path) {
     println!("method             {}", s.method);
     println!("env                {} (seed {})", s.env, s.seed);
     // The paper's Table 1 value for this env and method, where it has one.
@@ -279,5 +284,4 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         "outputs            {}/{{summary.json,metrics.csv,config.toml,run.mcap,{traj}curves.png,checkpoints/,tb/}}",
         out.display()
     );
-    Ok(())
 }

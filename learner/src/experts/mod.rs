@@ -203,6 +203,126 @@ fn finished_episodes(chunks: &[Chunk], open: &mut Vec<(f64, usize)>) -> Vec<(f64
     done
 }
 
+/// Loads the start of a resumed run (`cfg.resume`: `cfg.out` and its state) or a warm
+/// start (`cfg.init_from`) into `vs` and `stats`; returns the env steps already taken
+/// (0 for a fresh expert).
+fn load_start(
+    cfg: &ExpertTrainConfig,
+    spec: &ess_envs::EnvSpec,
+    vs: &mut nn::VarStore,
+    stats: &mut RunningStats,
+) -> Result<u64> {
+    let source = match &cfg.init_from {
+        Some(p) => Some(p.as_path()),
+        None => cfg.resume.then_some(cfg.out.as_path()),
+    };
+    if let Some(src) = source {
+        let old = ExpertPolicy::load(src)?;
+        // Resuming continues the same mode; a warm start may come from any mode.
+        let mode = if cfg.resume { cfg.mode } else { old.meta.mode };
+        old.check_fits(spec, mode, src)?;
+        let state = state_path(src);
+        crate::tensor_file::load_var_store(vs, &state)
+            .with_context(|| format!("loading training state {}", state.display()))?;
+        let (m, s) = old.obs_stats();
+        // Resume the normaliser as if from `trained_steps` observations.
+        stats.count = old.meta.trained_steps as f64;
+        stats.mean = m.iter().map(|&x| x as f64).collect();
+        stats.m2 = s
+            .iter()
+            .map(|&x| (x as f64).powi(2) * stats.count)
+            .collect();
+        return Ok(old.meta.trained_steps);
+    }
+    Ok(0)
+}
+
+/// The rollout source of an expert run: actor threads or processes, each stepping the
+/// plain env under mode `cfg.mode`'s task reward.
+fn expert_actors(
+    cfg: &ExpertTrainConfig,
+    latent: LatentSpec,
+    seeds: Vec<u64>,
+) -> Result<Box<dyn RolloutSource>> {
+    Ok(match cfg.transport {
+        ess_proto::config::ActorTransport::Threads => {
+            let workers: Vec<Worker> = seeds
+                .iter()
+                .map(|&seed| -> Result<Worker> {
+                    let env = make_plain_env(&cfg.env, cfg.n_modes)?;
+                    Ok(Worker::new(env, seed, 1).with_task_reward(cfg.mode)?)
+                })
+                .collect::<Result<_>>()?;
+            Box::new(ThreadedActors::new(workers, latent))
+        }
+        ess_proto::config::ActorTransport::Processes => Box::new(crate::actors::ShmActors::new(
+            crate::actors::ShmActorsConfig {
+                run_id: crate::actors::new_run_id(),
+                binary: crate::actors::actor_binary()?,
+                env: cfg.env.clone(),
+                n_modes: cfg.n_modes,
+                latent,
+                max_steps: cfg.rollout_steps.div_ceil(cfg.actors),
+                seeds,
+                heartbeat_timeout: std::time::Duration::from_secs_f64(cfg.actor_timeout_s),
+                startup_timeout: std::time::Duration::from_secs(30),
+                plain_env: true,
+                task_mode: Some(cfg.mode),
+            },
+        )?),
+    })
+}
+
+/// The PPO batch of one rollout: observations normalised with `(obs_mean, obs_std)`,
+/// GAE on the task reward with `scaler`, no code and no eps.
+fn ppo_batch(
+    cfg: &ExpertTrainConfig,
+    ppo: &PpoLearner,
+    scaler: &mut RewardScaler,
+    chunks: &[Chunk],
+    all: &Chunk,
+    (obs_mean, obs_std): (&[f32], &[f32]),
+) -> Result<PpoBatch> {
+    let (od, ad) = (all.obs_dim, all.act_dim);
+    let norm = |x: &[f32]| {
+        let mut v = x.to_vec();
+        crate::eval::classifier::normalize_rows(&mut v, obs_mean, obs_std);
+        tensor_2d(&v, od)
+    };
+    let obs_n = norm(&all.obs);
+    let next_n = norm(&all.next_obs);
+    let n = all.len() as i64;
+    let zeros = Tensor::zeros([n, 1], (tch::Kind::Float, tch::Device::Cpu));
+    let eps_col = column(&all.eps);
+    let (values, next_values) = tch::no_grad(|| {
+        let vin = Tensor::cat(&[&obs_n, &eps_col, &zeros], 1);
+        let nin = Tensor::cat(&[&next_n, &eps_col, &zeros], 1);
+        (
+            tensor_to_vec(&ppo.values(&vin)),
+            tensor_to_vec(&ppo.values(&nin)),
+        )
+    });
+    let (adv, ret) = rollout_gae(
+        &cfg.ppo,
+        scaler,
+        chunks,
+        &all.env_reward,
+        &values,
+        &next_values,
+    );
+    let batch = PpoBatch {
+        obs: obs_n,
+        eps: eps_col,
+        code: zeros.shallow_clone(),
+        gumbel: zeros,
+        pre_tanh: tensor_2d(&all.pre_tanh, ad),
+        old_logp: Tensor::from_slice(&all.logp),
+        adv: Tensor::from_slice(&adv),
+        returns: Tensor::from_slice(&ret),
+    };
+    Ok(batch)
+}
+
 /// Trains one expert; `progress` sees every iteration. Stops early (saving) when
 /// `shutdown` is set. Returns the saved expert.
 pub fn train_expert(
@@ -246,34 +366,11 @@ pub fn train_expert(
         1.0,
     )?;
     let mut stats = RunningStats::new(od);
-    let mut env_steps = 0u64;
-    let mut first_iteration = 1;
     if cfg.resume && cfg.init_from.is_some() {
         bail!("resume and init_from exclude each other");
     }
-    let source = match &cfg.init_from {
-        Some(p) => Some(p.as_path()),
-        None => cfg.resume.then_some(cfg.out.as_path()),
-    };
-    if let Some(src) = source {
-        let old = ExpertPolicy::load(src)?;
-        // Resuming continues the same mode; a warm start may come from any mode.
-        let mode = if cfg.resume { cfg.mode } else { old.meta.mode };
-        old.check_fits(&spec, mode, src)?;
-        let state = state_path(src);
-        crate::tensor_file::load_var_store(&mut vs, &state)
-            .with_context(|| format!("loading training state {}", state.display()))?;
-        let (m, s) = old.obs_stats();
-        // Resume the normaliser as if from `trained_steps` observations.
-        stats.count = old.meta.trained_steps as f64;
-        stats.mean = m.iter().map(|&x| x as f64).collect();
-        stats.m2 = s
-            .iter()
-            .map(|&x| (x as f64).powi(2) * stats.count)
-            .collect();
-        env_steps = old.meta.trained_steps;
-        first_iteration = (env_steps / cfg.rollout_steps as u64) as usize + 1;
-    }
+    let mut env_steps = load_start(cfg, &spec, &mut vs, &mut stats)?;
+    let first_iteration = (env_steps / cfg.rollout_steps as u64) as usize + 1;
     let seeds: Vec<u64> = (0..cfg.actors)
         .map(|i| {
             cfg.seed
@@ -282,33 +379,7 @@ pub fn train_expert(
                 .wrapping_add(i as u64)
         })
         .collect();
-    let mut actors: Box<dyn RolloutSource> = match cfg.transport {
-        ess_proto::config::ActorTransport::Threads => {
-            let workers: Vec<Worker> = seeds
-                .iter()
-                .map(|&seed| -> Result<Worker> {
-                    let env = make_plain_env(&cfg.env, cfg.n_modes)?;
-                    Ok(Worker::new(env, seed, 1).with_task_reward(cfg.mode)?)
-                })
-                .collect::<Result<_>>()?;
-            Box::new(ThreadedActors::new(workers, latent))
-        }
-        ess_proto::config::ActorTransport::Processes => Box::new(crate::actors::ShmActors::new(
-            crate::actors::ShmActorsConfig {
-                run_id: crate::actors::new_run_id(),
-                binary: crate::actors::actor_binary()?,
-                env: cfg.env.clone(),
-                n_modes: cfg.n_modes,
-                latent,
-                max_steps: cfg.rollout_steps.div_ceil(cfg.actors),
-                seeds,
-                heartbeat_timeout: std::time::Duration::from_secs_f64(cfg.actor_timeout_s),
-                startup_timeout: std::time::Duration::from_secs(30),
-                plain_env: true,
-                task_mode: Some(cfg.mode),
-            },
-        )?),
-    };
+    let mut actors = expert_actors(cfg, latent, seeds)?;
     let mut csv = open_csv(cfg)?;
     let mut scaler = RewardScaler::default();
     let mut open = Vec::new();
@@ -338,42 +409,7 @@ pub fn train_expert(
         recent.extend(episodes.iter().map(|e| e.0));
         let keep = recent.len().saturating_sub(100);
         recent.drain(..keep);
-        let norm = |x: &[f32]| {
-            let mut v = x.to_vec();
-            crate::eval::classifier::normalize_rows(&mut v, &obs_mean, &obs_std);
-            tensor_2d(&v, od)
-        };
-        let obs_n = norm(&all.obs);
-        let next_n = norm(&all.next_obs);
-        let n = all.len() as i64;
-        let zeros = Tensor::zeros([n, 1], (tch::Kind::Float, tch::Device::Cpu));
-        let eps_col = column(&all.eps);
-        let (values, next_values) = tch::no_grad(|| {
-            let vin = Tensor::cat(&[&obs_n, &eps_col, &zeros], 1);
-            let nin = Tensor::cat(&[&next_n, &eps_col, &zeros], 1);
-            (
-                tensor_to_vec(&ppo.values(&vin)),
-                tensor_to_vec(&ppo.values(&nin)),
-            )
-        });
-        let (adv, ret) = rollout_gae(
-            &cfg.ppo,
-            &mut scaler,
-            &chunks,
-            &all.env_reward,
-            &values,
-            &next_values,
-        );
-        let batch = PpoBatch {
-            obs: obs_n,
-            eps: eps_col,
-            code: zeros.shallow_clone(),
-            gumbel: zeros,
-            pre_tanh: tensor_2d(&all.pre_tanh, ad),
-            old_logp: Tensor::from_slice(&all.logp),
-            adv: Tensor::from_slice(&adv),
-            returns: Tensor::from_slice(&ret),
-        };
+        let batch = ppo_batch(cfg, &ppo, &mut scaler, &chunks, &all, (&obs_mean, &obs_std))?;
         let st = ppo.update(&batch, &mut rng);
         // The normaliser learns from this rollout only after the update used it.
         stats.update(&all.obs);
