@@ -426,7 +426,7 @@ pub fn train_expert(
         progress(&report);
         it += 1;
         // Save every 10 iterations and at the end (the state file is what resumes).
-        if it % 10 == 0 || env_steps >= cfg.steps || shutdown.load(Ordering::Relaxed) {
+        if it.is_multiple_of(10) || env_steps >= cfg.steps || shutdown.load(Ordering::Relaxed) {
             let e = save(cfg, &spec, &ppo, &stats, env_steps, &recent)?;
             crate::tensor_file::save_var_store(&vs, &state_path(&cfg.out))?;
             csv.flush()?;
