@@ -2,7 +2,8 @@
 //! and decoded with the classes of Foxglove's own `foxglove-schemas-protobuf` package
 //! (both from PyPI into `.deps/pytest`): the schemas are Foxglove's, every message
 //! decodes, each logged episode starts with its bodies as entities and moves them with
-//! one transform set per step, stamped the env's step duration apart.
+//! one transform set per step, stamped the env's step duration apart; `ess replay
+//! --mcap` writes a re-simulated episode's robot with the same poses.
 
 use ess_tests::{SMOKE, ess, pytest_path, python};
 use serde_json::Value;
@@ -127,4 +128,49 @@ fn a_reacher_run_log_plays_its_episodes_as_foxglove_scenes() {
         ep.iter().any(|t| (x(t) - x(ep[0])).abs() > 1e-3),
         "the arm never moved"
     );
+    // `ess replay --mcap`: the re-simulated episode 0 alone, the same poses as logged.
+    let ep_mcap = d.path().join("ep0.mcap");
+    let r = ess(&[
+        "replay",
+        &run.join("run.mcap").display().to_string(),
+        "--episode",
+        "0",
+        "--mcap",
+        &ep_mcap.display().to_string(),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let out = python(READ_WITH_MCAP_AND_FOXGLOVE, &[ep_mcap.as_os_str()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let w: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(w["scenes"].as_array().unwrap().len(), 1);
+    assert_eq!(w["scenes"][0]["entities"], scenes[0]["entities"]);
+    let replayed = w["tf"].as_array().unwrap();
+    assert_eq!(replayed.len(), ep.len());
+    for (a, b) in replayed.iter().zip(&ep) {
+        assert_eq!(a["tf"], b["tf"], "replayed poses equal the logged ones");
+    }
+    let t0 = replayed[0]["t"].as_u64().unwrap();
+    for (k, t) in replayed.iter().enumerate() {
+        assert_eq!(t["t"].as_u64().unwrap(), t0 + 20_000_000 * k as u64);
+    }
+    // An env without bodies has nothing to draw: one line, exit 2.
+    let t2d = d.path().join("t2d");
+    let t2d_s = t2d.display().to_string();
+    let mut args = vec!["train", "--actors", "0", "--out", &t2d_s];
+    args.extend_from_slice(SMOKE);
+    assert!(ess(&args).status.success());
+    let r = ess(&[
+        "replay",
+        &t2d.join("run.mcap").display().to_string(),
+        "--episode",
+        "0",
+        "--mcap",
+        &d.path().join("x.mcap").display().to_string(),
+    ]);
+    assert_eq!(r.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("no bodies to draw"));
 }

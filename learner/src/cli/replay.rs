@@ -19,6 +19,11 @@ pub struct ReplayArgs {
     /// `<name>-path.png`); needs --episode.
     #[arg(long, value_name = "PNG")]
     plot: Option<PathBuf>,
+    /// Write the re-simulated episode's robot into this MCAP file (`/scene`, `/tf` in
+    /// Foxglove's schemas, with the run's `/config`), for Foxglove or Lichtblick; needs
+    /// --episode and an env with bodies (not traj2d).
+    #[arg(long, value_name = "MCAP")]
+    mcap: Option<PathBuf>,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -41,8 +46,8 @@ pub fn replay(a: ReplayArgs) -> Result<()> {
         );
     }
     let Some(episode) = a.episode else {
-        if a.plot.is_some() {
-            return Err(input_err("--plot needs --episode N"));
+        if a.plot.is_some() || a.mcap.is_some() {
+            return Err(input_err("--plot and --mcap need --episode N"));
         }
         let rows = list(&rec);
         if a.json {
@@ -88,12 +93,16 @@ pub fn replay(a: ReplayArgs) -> Result<()> {
         }
         None => Vec::new(),
     };
+    if let Some(out) = &a.mcap {
+        write_scene(out, &rec, episode, &traj).map_err(input)?;
+    }
     let ok = report.max_deviation() <= a.tol;
     if a.json {
         let mut v = serde_json::to_value(&report)?;
         v["tol"] = serde_json::json!(a.tol);
         v["within_tol"] = serde_json::json!(ok);
         v["plots"] = serde_json::json!(plots);
+        v["mcap"] = serde_json::json!(a.mcap);
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
@@ -118,6 +127,9 @@ pub fn replay(a: ReplayArgs) -> Result<()> {
         for p in &plots {
             println!("plot                       {}", p.display());
         }
+        if let Some(m) = &a.mcap {
+            println!("scene (Foxglove)           {}", m.display());
+        }
     }
     if !ok {
         anyhow::bail!(
@@ -127,5 +139,30 @@ pub fn replay(a: ReplayArgs) -> Result<()> {
             a.tol
         );
     }
+    Ok(())
+}
+
+/// `--mcap OUT`: the replayed episode's robot as its own run log.
+fn write_scene(
+    out: &std::path::Path,
+    rec: &ess_learner::runlog::replay::Recording,
+    episode: u32,
+    traj: &ess_learner::runlog::replay::Trajectory,
+) -> Result<(), ess_learner::runlog::replay::ReplayError> {
+    use ess_learner::runlog::replay::{ReplayError, episode_scene};
+    let Some((scene, poses, code)) = episode_scene(rec, episode, traj)? else {
+        return Err(ReplayError::Episode {
+            path: rec.path.clone(),
+            episode,
+            why: format!("--mcap: env `{}` has no bodies to draw", traj.env),
+        });
+    };
+    ess_learner::runlog::RunLog::write_scene_file(
+        out,
+        &rec.config,
+        &scene,
+        &poses,
+        (episode, code),
+    )?;
     Ok(())
 }

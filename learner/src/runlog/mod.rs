@@ -377,6 +377,34 @@ impl RunLog {
         self.flush()
     }
 
+    /// One replayed episode's robot as a run log of its own: `config`'s `/config`
+    /// record, then the bodies on `/scene` and their poses on `/tf`, stamped the env's
+    /// step duration apart from now (what `ess replay --mcap` writes; Foxglove and
+    /// Lichtblick play it, `ess replay` reads its config).
+    pub fn write_scene_file(
+        path: &Path,
+        config: &ess_proto::pb::RunConfig,
+        s: &Scene,
+        poses: &scene::EpisodePoses,
+        (episode, code): (u32, usize),
+    ) -> Result<(), RunLogError> {
+        let options = LogOptions {
+            chunks_every: 0,
+            chunk_steps: 0,
+            periodic_evals: false,
+            n_codes: config.n_modes as usize,
+            one_hot: true,
+        };
+        let mut log = Self::open_writer(path, options)?;
+        let t0 = now_ns();
+        log.write_at(t0, &Record::Config(config.clone()))?;
+        let dt = (s.dt * 1e9) as u64;
+        for k in 0..poses.0.len() {
+            log.scene_at(s, poses, k, t0 + dt * k as u64, (episode, code))?;
+        }
+        log.close()
+    }
+
     /// An episode's robot at its `k`-th record (0: the start, with the `/scene`
     /// entities), time `t`.
     fn scene_at(

@@ -322,6 +322,41 @@ pub fn replay(rec: &Recording, episode: u32) -> Result<(ReplayReport, Trajectory
     Ok((report, traj))
 }
 
+/// The robot of a replayed episode: the env's bodies and their poses in each
+/// re-simulated state of `traj`, with the episode's code; `None` for an env without
+/// bodies (Traj2D).
+pub fn episode_scene(
+    rec: &Recording,
+    episode: u32,
+    traj: &Trajectory,
+) -> Result<Option<(ess_envs::scene::Scene, super::scene::EpisodePoses, usize)>, ReplayError> {
+    let env_err = |at: String| {
+        move |source| ReplayError::Env {
+            path: rec.path.clone(),
+            episode,
+            at,
+            source,
+        }
+    };
+    let mut env = make_training_env(&traj.env, traj.n_modes)
+        .map_err(env_err(format!("building env `{}`", traj.env)))?;
+    let Some(scene) = env.scene() else {
+        return Ok(None);
+    };
+    let mut poses = Vec::with_capacity(traj.replayed.len());
+    for (k, state) in traj.replayed.iter().enumerate() {
+        env.set_state(state)
+            .map_err(env_err(format!("state {k}")))?;
+        poses.push(env.body_poses());
+    }
+    let code = rec
+        .episodes
+        .iter()
+        .find(|(e, _)| e.episode == episode)
+        .map_or(0, |(e, _)| e.code as usize);
+    Ok(Some((scene, super::scene::EpisodePoses(poses), code)))
+}
+
 /// Length of the `qpos` block of a MuJoCo env's state (it follows the time, the first
 /// value of `mjSTATE_INTEGRATION`); `None` for Traj2D and unknown envs.
 pub fn qpos_len(env: &str) -> Option<usize> {
