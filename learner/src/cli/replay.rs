@@ -30,7 +30,7 @@ pub struct ReplayArgs {
 }
 
 pub fn replay(a: ReplayArgs) -> Result<()> {
-    use ess_learner::runlog::replay::{ReplayError, list, load, plot, replay};
+    use ess_learner::runlog::replay::{ReplayError, load, plot, replay};
     let input = |e: ReplayError| match e {
         ReplayError::Plot(_) => anyhow::Error::new(e),
         e => input_err(e),
@@ -49,42 +49,7 @@ pub fn replay(a: ReplayArgs) -> Result<()> {
         if a.plot.is_some() || a.mcap.is_some() {
             return Err(input_err("--plot and --mcap need --episode N"));
         }
-        let rows = list(&rec);
-        if a.json {
-            println!("{}", serde_json::to_string_pretty(&rows)?);
-        } else {
-            println!(
-                "{}: {} on {} (seed {}), {} evaluation episodes",
-                a.file.display(),
-                rec.config.method,
-                rec.config.env,
-                rec.config.seed,
-                rows.len()
-            );
-            println!("episode  iteration  final  code     eps  length  return per mode");
-            for r in &rows {
-                let len = if r.recorded_steps == r.length as usize {
-                    r.length.to_string()
-                } else {
-                    format!("{}/{}", r.recorded_steps, r.length)
-                };
-                println!(
-                    "{:>7}  {:>9}  {:>5}  {:>4}  {:>+6.3}  {:>6}  {}",
-                    r.episode,
-                    r.iteration,
-                    if r.final_eval { "yes" } else { "no" },
-                    r.code,
-                    r.eps,
-                    len,
-                    r.mode_returns
-                        .iter()
-                        .map(|v| format!("{v:.3}"))
-                        .collect::<Vec<_>>()
-                        .join(" ")
-                );
-            }
-        }
-        return Ok(());
+        return print_list(&a, &rec);
     };
     let (report, traj) = replay(&rec, episode).map_err(input)?;
     let plots = match &a.plot {
@@ -164,5 +129,46 @@ fn write_scene(
         &poses,
         (episode, code),
     )?;
+    Ok(())
+}
+
+/// Without `--episode`: one line per logged evaluation episode (or JSON).
+fn print_list(a: &ReplayArgs, rec: &ess_learner::runlog::replay::Recording) -> Result<()> {
+    use ess_learner::runlog::replay::list;
+    let rows = list(rec);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        println!(
+            "{}: {} on {} (seed {}), {} evaluation episodes",
+            a.file.display(),
+            rec.config.method,
+            rec.config.env,
+            rec.config.seed,
+            rows.len()
+        );
+        println!("episode  iteration  final  code     eps  length  return per mode");
+        for r in &rows {
+            let len = if r.recorded_steps == r.length as usize {
+                r.length.to_string()
+            } else {
+                format!("{}/{}", r.recorded_steps, r.length)
+            };
+            println!(
+                "{:>7}  {:>9}  {:>5}  {:>4}  {:>+6.3}  {:>6}  {}",
+                r.episode,
+                r.iteration,
+                if r.final_eval { "yes" } else { "no" },
+                r.code,
+                r.eps,
+                len,
+                r.mode_returns
+                    .iter()
+                    .map(|v| format!("{v:.3}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            );
+        }
+    }
     Ok(())
 }

@@ -403,6 +403,41 @@ pub enum SacInputError {
     },
 }
 
+/// The replay buffer a run starts with: the saved one on `--resume` (when it exists),
+/// else an empty one (a fresh run removes another run's leftover buffer file, so a
+/// later `--resume` of this run cannot read it). `p`: observed entries, `ad`: actions.
+fn open_replay(
+    cfg: &ExpertTrainConfig,
+    sc: &SacConfig,
+    (p, ad): (usize, usize),
+    env_steps: u64,
+) -> Result<Replay> {
+    let rpath = replay_path(&cfg.out);
+    Ok(if cfg.resume && rpath.exists() {
+        let (r, at) = Replay::load(&rpath, sc.buffer, p, ad)?;
+        tracing::info!(
+            "resuming at {env_steps} steps with the {} transitions of {} (saved at {at} steps)",
+            r.len,
+            rpath.display()
+        );
+        r
+    } else {
+        if cfg.resume {
+            tracing::warn!(
+                "no replay {} to resume with: refilling the buffer with the policy for {} \
+                 steps before updating",
+                rpath.display(),
+                sc.learning_starts.max(sc.batch)
+            );
+        } else if rpath.exists() {
+            // Another run's buffer: a later --resume of this run must not read it.
+            std::fs::remove_file(&rpath)
+                .with_context(|| format!("removing the old replay {}", rpath.display()))?;
+        }
+        Replay::new(sc.buffer, p, ad)
+    })
+}
+
 /// Trains `cfg.mode`'s expert with SAC; `progress` sees one report per `log_every`
 /// env steps. Stops early (saving) when `shutdown` is set. Returns the saved expert.
 pub fn train_expert_sac(
@@ -449,30 +484,7 @@ pub fn train_expert_sac(
         env_steps = old.meta.trained_steps;
     }
     let start_steps = env_steps;
-    let rpath = replay_path(&cfg.out);
-    let mut replay = if cfg.resume && rpath.exists() {
-        let (r, at) = Replay::load(&rpath, sc.buffer, p, ad)?;
-        tracing::info!(
-            "resuming at {env_steps} steps with the {} transitions of {} (saved at {at} steps)",
-            r.len,
-            rpath.display()
-        );
-        r
-    } else {
-        if cfg.resume {
-            tracing::warn!(
-                "no replay {} to resume with: refilling the buffer with the policy for {} \
-                 steps before updating",
-                rpath.display(),
-                sc.learning_starts.max(sc.batch)
-            );
-        } else if rpath.exists() {
-            // Another run's buffer: a later --resume of this run must not read it.
-            std::fs::remove_file(&rpath)
-                .with_context(|| format!("removing the old replay {}", rpath.display()))?;
-        }
-        Replay::new(sc.buffer, p, ad)
-    };
+    let mut replay = open_replay(cfg, sc, (p, ad), env_steps)?;
     // A fresh run explores at random; a resumed one without a saved buffer refills it
     // with the policy before updating; one with a buffer updates at once.
     let random_until = if cfg.resume {
@@ -604,7 +616,7 @@ pub fn train_expert_sac(
         None => save(cfg, &spec, &sac, &replay, p, &stats, env_steps, &recent)?,
     };
     if sc.save_replay && env_steps > start_steps && replay.len > 0 {
-        replay.save(&rpath, env_steps)?;
+        replay.save(&replay_path(&cfg.out), env_steps)?;
     }
     Ok(expert)
 }
