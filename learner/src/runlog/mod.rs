@@ -37,7 +37,7 @@ mod record;
 pub mod replay;
 pub mod scene;
 
-pub use read::{Logged, MAX_RECORD_BYTES, RunLogContents, read, read_from};
+pub use read::{Logged, MAX_RECORD_BYTES, RunLogContents, SceneMessage, read, read_from};
 pub use record::{
     CONFIG_TOPIC, EVAL_EPISODE_TOPIC, EVAL_STEP_TOPIC, LogOptions, METRICS_TOPIC, Record, TOPICS,
     TRAINING_CHUNK_TOPIC, config_record, episode_records,
@@ -208,7 +208,8 @@ impl RunLog {
     /// Kept: every complete message of the existing file (which may be truncated) that
     /// belongs to iterations `<= upto_iteration` with its original log time: `/config`,
     /// `/metrics` (the first message of each iteration `1..=upto_iteration`),
-    /// `/train/chunk`, and the periodic evaluations' episodes and steps. Dropped: later
+    /// `/train/chunk`, and the periodic evaluations' episodes and steps with their
+    /// `/scene` and `/tf` messages. Dropped: later
     /// iterations and the interrupted run's final evaluation (episodes marked
     /// `final_eval`, the `/metrics` message repeating an iteration, iteration 0). A
     /// `/config` record of `cfg` is appended when its TOML differs from the last kept
@@ -233,7 +234,8 @@ impl RunLog {
         let mut seen_iterations = HashSet::new();
         let mut kept_episodes = HashSet::new();
         let mut last_toml: Option<String> = None;
-        for entry in &old.records {
+        let mut scene = old.scene.iter().peekable();
+        for (i, entry) in old.records.iter().enumerate() {
             let keep = match &entry.record {
                 Record::Config(c) => {
                     last_toml = Some(c.toml.clone());
@@ -257,6 +259,15 @@ impl RunLog {
             };
             if keep {
                 log.write_at(entry.log_time, &entry.record)?;
+            }
+            // A kept episode's robot: the scene messages written right after its
+            // records, at their times.
+            let drawn =
+                keep && matches!(entry.record, Record::EvalEpisode(_) | Record::EvalStep(_));
+            while let Some(m) = scene.next_if(|m| m.after <= i + 1) {
+                if drawn && m.after == i + 1 && m.log_time == entry.log_time {
+                    log.write_raw(log.scene_channels[m.topic], m.log_time, &m.data)?;
+                }
             }
         }
         let cfg_record = config_record(cfg);
@@ -784,6 +795,76 @@ mod tests {
                 ..Default::default()
             }),
         ]
+    }
+
+    #[test]
+    fn reopen_keeps_the_periodic_episodes_robot_and_drops_the_final_evaluations() {
+        use ess_envs::scene::{Body, Pose, Scene};
+        let mut b = ess_proto::config::ConfigBuilder::new();
+        b.set("run.log_periodic_evals=true").unwrap();
+        let cfg = b.build().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let scene = Scene {
+            bodies: vec![
+                Body {
+                    name: "world".into(),
+                    geoms: Vec::new(),
+                },
+                Body {
+                    name: "torso".into(),
+                    geoms: Vec::new(),
+                },
+            ],
+            dt: 0.01,
+        };
+        let pose = |x: f64| Pose {
+            pos: [x, 0.0, 0.0],
+            quat: [1.0, 0.0, 0.0, 0.0],
+        };
+        // Two steps: the start and two poses, one transform set each.
+        let ep = EvalEpisode {
+            n_modes: 1,
+            mode_rewards: vec![0.5, 0.5],
+            obs: vec![0.0; 2],
+            act: vec![0.0; 2],
+            next_obs: vec![0.0; 2],
+            start_obs: vec![0.0],
+            ..Default::default()
+        };
+        let poses = |x: f64| scene::EpisodePoses(vec![vec![pose(0.0), pose(x)]; 3]);
+        let mut log = RunLog::create(&path, &cfg).unwrap();
+        let drawn = |x| (scene.clone(), vec![poses(x)]);
+        let (s1, p1) = drawn(1.0);
+        log.eval_episodes(1, false, std::slice::from_ref(&ep), Some((&s1, &p1)))
+            .unwrap();
+        log.iteration(&IterationLog {
+            iteration: 1,
+            ..Default::default()
+        })
+        .unwrap();
+        let (s2, p2) = drawn(2.0);
+        log.eval_episodes(2, true, std::slice::from_ref(&ep), Some((&s2, &p2)))
+            .unwrap();
+        log.finish().unwrap();
+        let before = read(&path).unwrap();
+        // Per episode: one /scene entity set and a transform set per record.
+        assert_eq!(before.scene.len(), 2 * (1 + ep.len() + 1));
+
+        RunLog::reopen(&path, &cfg, 1).unwrap().finish().unwrap();
+        let after = read(&path).unwrap();
+        let kept: Vec<&SceneMessage> = before.scene.iter().take(1 + ep.len() + 1).collect();
+        assert_eq!(
+            after.scene.len(),
+            kept.len(),
+            "the final evaluation's robot is gone"
+        );
+        for (a, b) in after.scene.iter().zip(kept) {
+            assert_eq!(
+                (a.topic, a.log_time, &a.data),
+                (b.topic, b.log_time, &b.data)
+            );
+        }
     }
 
     #[test]

@@ -28,6 +28,21 @@ pub struct RunLogContents {
     pub truncated: Option<String>,
     /// Messages on topics this version does not know (skipped).
     pub unknown: usize,
+    /// The `/scene` and `/tf` messages, undecoded (Ess only writes them).
+    pub scene: Vec<SceneMessage>,
+}
+
+/// One `/scene` or `/tf` message as read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneMessage {
+    /// How many records precede it in the file.
+    pub after: usize,
+    /// Index into [`scene::SCENE_TOPICS`].
+    pub topic: usize,
+    /// Its log time.
+    pub log_time: u64,
+    /// The encoded message.
+    pub data: Vec<u8>,
 }
 
 impl RunLogContents {
@@ -102,9 +117,16 @@ pub fn read_from(path: &Path, mut source: impl Read) -> Result<RunLogContents, R
         };
         let ch = &msg.channel;
         let Some(kind) = TOPICS.iter().position(|(t, _)| *t == ch.topic) else {
-            // The 3D scene is for viewers; Ess reads nothing back from it.
-            if !scene::SCENE_TOPICS.iter().any(|(t, _)| *t == ch.topic) {
-                out.unknown += 1;
+            // The 3D scene is for viewers: kept as bytes, with its place among the
+            // records, so a resumed run's log carries it over; anything else is unknown.
+            match scene::SCENE_TOPICS.iter().position(|(t, _)| *t == ch.topic) {
+                Some(topic) => out.scene.push(SceneMessage {
+                    after: out.records.len(),
+                    topic,
+                    log_time: msg.log_time,
+                    data: msg.data.into_owned(),
+                }),
+                None => out.unknown += 1,
             }
             continue;
         };
