@@ -79,6 +79,88 @@ pub struct ExpertMeta {
     pub generator: String,
 }
 
+/// What makes an expert file's contents unusable; each names the field or tensor.
+#[derive(Debug, thiserror::Error)]
+pub enum ExpertFileError {
+    /// The container (safetensors with checksums) cannot be read or written.
+    #[error("{0}")]
+    Container(String),
+    /// The `meta` header is not the expected JSON.
+    #[error("header meta: {0}")]
+    Meta(String),
+    /// `meta.sizes` names fewer than two layers.
+    #[error("meta.sizes = {0:?}: needs input and output")]
+    Sizes(Vec<usize>),
+    /// The first layer's width is not the observation plus the extra inputs.
+    #[error("meta.sizes[0] = {first} but obs_dim + extra_inputs = {inputs}")]
+    InputWidth {
+        /// `meta.sizes[0]`.
+        first: usize,
+        /// `obs_dim + extra_inputs`.
+        inputs: usize,
+    },
+    /// The last layer's width is not the action's.
+    #[error("meta.sizes ends in {last:?} but act_dim = {act_dim}")]
+    OutputWidth {
+        /// The last size.
+        last: Option<usize>,
+        /// `meta.act_dim`.
+        act_dim: usize,
+    },
+    /// `meta.mode` is not one of the env's modes.
+    #[error("meta.mode = {mode} is not below meta.n_modes = {n_modes}")]
+    Mode {
+        /// `meta.mode`.
+        mode: usize,
+        /// `meta.n_modes`.
+        n_modes: usize,
+    },
+    /// A tensor is missing.
+    #[error("tensor {0:?} is missing")]
+    Missing(String),
+    /// A tensor is not a rank-1 F32 tensor.
+    #[error("tensor {name:?} has dtype {dtype} shape {shape:?}, expected F32 of rank 1")]
+    Kind {
+        /// Tensor.
+        name: String,
+        /// Its dtype.
+        dtype: String,
+        /// Its shape.
+        shape: Vec<usize>,
+    },
+    /// The MLP parameters do not fit `meta.sizes`.
+    #[error("tensor \"params\": {0}")]
+    Params(String),
+    /// A tensor has the wrong length.
+    #[error("tensor {name:?} has {got} values, expected {want}")]
+    Length {
+        /// Tensor.
+        name: &'static str,
+        /// Values found.
+        got: usize,
+        /// Values expected.
+        want: usize,
+    },
+    /// A value is NaN or infinite.
+    #[error("tensor {name:?}[{index}] = {value} is not finite")]
+    NotFinite {
+        /// Tensor.
+        name: &'static str,
+        /// Index.
+        index: usize,
+        /// The value.
+        value: f32,
+    },
+    /// A standard deviation is not positive.
+    #[error("tensor \"obs_std\"[{index}] = {value} must be > 0")]
+    StdNotPositive {
+        /// Index.
+        index: usize,
+        /// The value.
+        value: f32,
+    },
+}
+
 /// Errors of expert files.
 #[derive(Debug, thiserror::Error)]
 pub enum ExpertError {
@@ -103,12 +185,13 @@ pub enum ExpertError {
         path: PathBuf,
     },
     /// The file is not a valid expert file.
-    #[error("{path}: invalid expert file: {reason}")]
+    #[error("{path}: invalid expert file: {source}")]
     Invalid {
         /// File.
         path: PathBuf,
         /// What is wrong (names the key, tensor or field).
-        reason: String,
+        #[source]
+        source: ExpertFileError,
     },
     /// The expert was trained for another env, mode or shape.
     #[error("{path}: expert does not fit: {reason}")]
@@ -150,60 +233,61 @@ impl ExpertPolicy {
         log_std: Vec<f32>,
         obs_mean: Vec<f32>,
         obs_std: Vec<f32>,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, ExpertFileError> {
+        use ExpertFileError as E;
         if meta.sizes.len() < 2 {
-            return Err(format!(
-                "meta.sizes = {:?}: needs input and output",
-                meta.sizes
-            ));
+            return Err(E::Sizes(meta.sizes.clone()));
         }
         if meta.sizes[0] != meta.obs_dim + meta.extra_inputs {
-            return Err(format!(
-                "meta.sizes[0] = {} but obs_dim + extra_inputs = {}",
-                meta.sizes[0],
-                meta.obs_dim + meta.extra_inputs
-            ));
+            return Err(E::InputWidth {
+                first: meta.sizes[0],
+                inputs: meta.obs_dim + meta.extra_inputs,
+            });
         }
         if meta.sizes.last() != Some(&meta.act_dim) {
-            return Err(format!(
-                "meta.sizes ends in {:?} but act_dim = {}",
-                meta.sizes.last(),
-                meta.act_dim
-            ));
+            return Err(E::OutputWidth {
+                last: meta.sizes.last().copied(),
+                act_dim: meta.act_dim,
+            });
         }
         if meta.mode >= meta.n_modes {
-            return Err(format!(
-                "meta.mode = {} is not below meta.n_modes = {}",
-                meta.mode, meta.n_modes
-            ));
+            return Err(E::Mode {
+                mode: meta.mode,
+                n_modes: meta.n_modes,
+            });
         }
         let layout = MlpLayout {
             sizes: meta.sizes.clone(),
         };
-        let mean = Mlp::new(layout, params).map_err(|e| format!("tensor \"params\": {e}"))?;
+        let mean = Mlp::new(layout, params).map_err(|e| E::Params(e.to_string()))?;
         for (name, v, n) in [
             ("log_std", &log_std, meta.act_dim),
             ("obs_mean", &obs_mean, meta.obs_dim),
             ("obs_std", &obs_std, meta.obs_dim),
         ] {
             if v.len() != n {
-                return Err(format!(
-                    "tensor {name:?} has {} values, expected {n}",
-                    v.len()
-                ));
+                return Err(E::Length {
+                    name,
+                    got: v.len(),
+                    want: n,
+                });
             }
-            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-                return Err(format!("tensor {name:?}[{i}] = {} is not finite", v[i]));
+            if let Some(index) = v.iter().position(|x| !x.is_finite()) {
+                let value = v[index];
+                return Err(E::NotFinite { name, index, value });
             }
         }
-        if let Some(i) = obs_std.iter().position(|&s| s <= 0.0) {
-            return Err(format!(
-                "tensor \"obs_std\"[{i}] = {} must be > 0",
-                obs_std[i]
-            ));
+        if let Some(index) = obs_std.iter().position(|&s| s <= 0.0) {
+            let value = obs_std[index];
+            return Err(E::StdNotPositive { index, value });
         }
-        if let Some(i) = mean.params().iter().position(|x| !x.is_finite()) {
-            return Err(format!("tensor \"params\"[{i}] is not finite"));
+        if let Some(index) = mean.params().iter().position(|x| !x.is_finite()) {
+            let value = mean.params()[index];
+            return Err(E::NotFinite {
+                name: "params",
+                index,
+                value,
+            });
         }
         Ok(Self {
             meta,
@@ -225,8 +309,10 @@ impl ExpertPolicy {
     }
 
     /// Serialises to safetensors bytes (see the module docs).
-    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
-        let meta = serde_json::to_string(&self.meta).map_err(|e| e.to_string())?;
+    pub fn to_bytes(&self) -> Result<Vec<u8>, ExpertFileError> {
+        let container = |e: &dyn std::fmt::Display| ExpertFileError::Container(e.to_string());
+        let meta =
+            serde_json::to_string(&self.meta).map_err(|e| ExpertFileError::Meta(e.to_string()))?;
         let raw: Vec<(&str, Vec<u8>, usize)> = [
             ("params", self.mean.params()),
             ("log_std", &self.log_std[..]),
@@ -238,7 +324,7 @@ impl ExpertPolicy {
         .collect();
         let mut views = Vec::new();
         for (name, bytes, n) in &raw {
-            let view = TensorView::new(Dtype::F32, vec![*n], bytes).map_err(|e| e.to_string())?;
+            let view = TensorView::new(Dtype::F32, vec![*n], bytes).map_err(|e| container(&e))?;
             views.push((*name, view));
         }
         let mut header: HashMap<String, String> = [
@@ -249,14 +335,14 @@ impl ExpertPolicy {
         .into_iter()
         .collect();
         ess_proto::checksum::seal(&mut header, views.iter().map(|(n, v)| (*n, v)));
-        safetensors::serialize(views, Some(header)).map_err(|e| e.to_string())
+        safetensors::serialize(views, Some(header)).map_err(|e| container(&e))
     }
 
     /// Writes the expert to `path` atomically.
     pub fn save(&self, path: &Path) -> Result<(), ExpertError> {
-        let bytes = self.to_bytes().map_err(|reason| ExpertError::Invalid {
+        let bytes = self.to_bytes().map_err(|source| ExpertError::Invalid {
             path: path.to_owned(),
-            reason,
+            source,
         })?;
         crate::write_atomic(path, &bytes).map_err(|(path, source)| ExpertError::Io { path, source })
     }
@@ -267,28 +353,29 @@ impl ExpertPolicy {
             path: path.to_owned(),
             source,
         })?;
-        Self::from_bytes(&bytes).map_err(|reason| ExpertError::Invalid {
+        Self::from_bytes(&bytes).map_err(|source| ExpertError::Invalid {
             path: path.to_owned(),
-            reason,
+            source,
         })
     }
 
     /// Parses and validates safetensors bytes.
-    pub fn from_bytes(bytes: &[u8]) -> Result<Self, String> {
-        let file = ess_proto::checksum::open(bytes, FILE_FORMAT).map_err(|e| e.to_string())?;
-        let meta: ExpertMeta = serde_json::from_str(file.get("meta").map_err(|e| e.to_string())?)
-            .map_err(|e| format!("header meta: {e}"))?;
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, ExpertFileError> {
+        use ExpertFileError as E;
+        let file = ess_proto::checksum::open(bytes, FILE_FORMAT)
+            .map_err(|e| E::Container(e.to_string()))?;
+        let meta: ExpertMeta =
+            serde_json::from_str(file.get("meta").map_err(|e| E::Container(e.to_string()))?)
+                .map_err(|e| E::Meta(e.to_string()))?;
         let st = &file.tensors;
-        let read = |name: &str| -> Result<Vec<f32>, String> {
-            let t = st
-                .tensor(name)
-                .map_err(|_| format!("tensor {name:?} is missing"))?;
+        let read = |name: &str| -> Result<Vec<f32>, ExpertFileError> {
+            let t = st.tensor(name).map_err(|_| E::Missing(name.into()))?;
             if t.dtype() != Dtype::F32 || t.shape().len() != 1 {
-                return Err(format!(
-                    "tensor {name:?} has dtype {:?} shape {:?}, expected F32 of rank 1",
-                    t.dtype(),
-                    t.shape()
-                ));
+                return Err(E::Kind {
+                    name: name.into(),
+                    dtype: format!("{:?}", t.dtype()),
+                    shape: t.shape().to_vec(),
+                });
             }
             Ok(t.data()
                 .chunks_exact(4)
@@ -621,7 +708,7 @@ mod tests {
         );
         let bytes = toy_expert(0, 1).to_bytes().expect("bytes");
         let cut = &bytes[..bytes.len() - 7];
-        let msg = ExpertPolicy::from_bytes(cut).unwrap_err();
+        let msg = ExpertPolicy::from_bytes(cut).unwrap_err().to_string();
         assert!(msg.contains("truncated"), "{msg}");
         let missing = ExpertPolicy::load(&dir.path().join("nope.safetensors"))
             .unwrap_err()
@@ -663,7 +750,11 @@ mod tests {
             vec![1.0; 10],
         )
         .unwrap_err();
-        assert!(err.contains("sizes[0]"), "{err}");
+        assert!(
+            matches!(err, ExpertFileError::InputWidth { first: 12, .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("sizes[0]"), "{err}");
         let err = ExpertPolicy::new(
             e.meta.clone(),
             e.params().to_vec(),
@@ -672,7 +763,11 @@ mod tests {
             vec![0.0; 10],
         )
         .unwrap_err();
-        assert!(err.contains("obs_std"), "{err}");
+        assert!(
+            matches!(err, ExpertFileError::StdNotPositive { index: 0, .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("obs_std"), "{err}");
     }
 
     #[test]

@@ -49,7 +49,9 @@ pub use demos::{
     DemoError, DemoMeta, DemoSpec, DemoSplit, Demos, expert_episode, generate_demos, mode_weights,
 };
 pub use env::{Env, EnvError, EnvSpec, ScriptedExpert, StepOutcome};
-pub use expert::{ExpertEnv, ExpertError, ExpertMeta, ExpertPolicy, expert_path, experts_dir};
+pub use expert::{
+    ExpertEnv, ExpertError, ExpertFileError, ExpertMeta, ExpertPolicy, expert_path, experts_dir,
+};
 pub use humanoid::{Humanoid, HumanoidConfig};
 pub use locomotion::LocoMode;
 pub use pusher::{Pusher, PusherConfig};
