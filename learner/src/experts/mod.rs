@@ -282,7 +282,7 @@ fn ppo_batch(
     chunks: &[Chunk],
     all: &Chunk,
     (obs_mean, obs_std): (&[f32], &[f32]),
-) -> Result<PpoBatch> {
+) -> PpoBatch {
     let (od, ad) = (all.obs_dim, all.act_dim);
     let norm = |x: &[f32]| {
         let mut v = x.to_vec();
@@ -310,7 +310,7 @@ fn ppo_batch(
         &values,
         &next_values,
     );
-    let batch = PpoBatch {
+    PpoBatch {
         obs: obs_n,
         eps: eps_col,
         code: zeros.shallow_clone(),
@@ -319,8 +319,7 @@ fn ppo_batch(
         old_logp: Tensor::from_slice(&all.logp),
         adv: Tensor::from_slice(&adv),
         returns: Tensor::from_slice(&ret),
-    };
-    Ok(batch)
+    }
 }
 
 /// Trains one expert; `progress` sees every iteration. Stops early (saving) when
@@ -409,7 +408,7 @@ pub fn train_expert(
         recent.extend(episodes.iter().map(|e| e.0));
         let keep = recent.len().saturating_sub(100);
         recent.drain(..keep);
-        let batch = ppo_batch(cfg, &ppo, &mut scaler, &chunks, &all, (&obs_mean, &obs_std))?;
+        let batch = ppo_batch(cfg, &ppo, &mut scaler, &chunks, &all, (&obs_mean, &obs_std));
         let st = ppo.update(&batch, &mut rng);
         // The normaliser learns from this rollout only after the update used it.
         stats.update(&all.obs);

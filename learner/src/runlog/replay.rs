@@ -343,18 +343,15 @@ pub fn episode_scene(
     let Some(scene) = env.scene() else {
         return Ok(None);
     };
-    let mut poses = Vec::with_capacity(traj.replayed.len());
-    for (k, state) in traj.replayed.iter().enumerate() {
-        env.set_state(state)
-            .map_err(env_err(format!("state {k}")))?;
-        poses.push(env.body_poses());
-    }
+    let states = traj.replayed.iter().map(Vec::as_slice);
+    let poses = super::scene::poses_of(env.as_mut(), states)
+        .map_err(|(k, source)| env_err(format!("state {k}"))(source))?;
     let code = rec
         .episodes
         .iter()
         .find(|(e, _)| e.episode == episode)
         .map_or(0, |(e, _)| e.code as usize);
-    Ok(Some((scene, super::scene::EpisodePoses(poses), code)))
+    Ok(Some((scene, poses, code)))
 }
 
 /// Length of the `qpos` block of a MuJoCo env's state (it follows the time, the first

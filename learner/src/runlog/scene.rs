@@ -36,12 +36,20 @@ pub struct EpisodePoses(pub Vec<Vec<Pose>>);
 /// `ep`'s body poses, replayed on `env` from its recorded states (the start state,
 /// then the state after each step).
 pub fn episode_poses(env: &mut dyn Env, ep: &EvalEpisode) -> Result<EpisodePoses, EnvError> {
-    let mut out = Vec::with_capacity(ep.len() + 1);
-    env.set_state(&ep.start_state)?;
-    out.push(env.body_poses());
     let sd = ep.state_dim.max(1);
-    for state in ep.states.chunks_exact(sd).take(ep.len()) {
-        env.set_state(state)?;
+    let steps = ep.states.chunks_exact(sd).take(ep.len());
+    poses_of(env, std::iter::once(&ep.start_state[..]).chain(steps)).map_err(|(_, e)| e)
+}
+
+/// The body poses of `env` in each of `states`, restored in turn; an error comes with
+/// the index of the state the env refused.
+pub fn poses_of<'a>(
+    env: &mut dyn Env,
+    states: impl IntoIterator<Item = &'a [f64]>,
+) -> Result<EpisodePoses, (usize, EnvError)> {
+    let mut out = Vec::new();
+    for (k, state) in states.into_iter().enumerate() {
+        env.set_state(state).map_err(|e| (k, e))?;
         out.push(env.body_poses());
     }
     Ok(EpisodePoses(out))
