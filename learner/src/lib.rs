@@ -15,6 +15,7 @@
 //! | [`fused`] | the fused CPU backend of the update (`learner.backend`, default): D/Q steps, rewards, PPO and p(c) as passes over the networks' flat buffers, every gradient held to tch's autograd by tests |
 //! | [`objective`] | every objective term, one file each headed by its equation, and their weighted sum for every preset ([`objective::combined`], Eq. 9) |
 //! | [`eval`] | the paper's evaluation: behaviour [`eval::classifier`], NMI / ENT ([`eval::metrics`]), normalised reward; reports, Table 1 view ([`eval::table`]) and PNG figures ([`eval::plot`], [`eval::report`]) |
+//! | [`logs`] | the logs a run keeps beside `metrics.csv` (the run log and TensorBoard's file) behind the loop's [`train::RecordSink`], so the training core knows neither |
 //! | [`tboard`] | TensorBoard event files of a run (`tb/`): every `metrics.csv` number, the evaluations, the config and the figures |
 //! | [`runlog`] | the MCAP run log `run.mcap` (writer, truncation-tolerant reader) and [`runlog::replay`] (`ess replay`) |
 //! | [`control`] | the control plane: [`control::jobs`] (the job manager), [`control::serve`] (`ess serve`, gRPC), [`control::client`] (`ess job ...`) |
@@ -38,6 +39,7 @@ pub mod experts;
 pub mod export;
 pub mod fused;
 pub mod import;
+pub mod logs;
 pub mod malloc;
 pub mod objective;
 pub mod presets;

@@ -5,6 +5,7 @@
 //! stream is process-global, and a run beside another in one process would draw from
 //! it mid-run.
 
+use ess_learner::logs;
 use ess_learner::train::checkpoint::dir_for;
 use ess_learner::train::{IterationLog, Progress, resume, run};
 use ess_proto::config::{CheckedConfig, ConfigBuilder};
@@ -102,7 +103,14 @@ fn checkpoint_bytes(dir: &Path, it: usize) -> Vec<(String, Vec<u8>)> {
 /// same metrics, checkpoint bytes, NMI and p(c).
 fn assert_resume_is_bit_identical(cfg: &CheckedConfig) {
     let whole = tempfile::tempdir().expect("tmp");
-    let a = run(cfg, whole.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
+    let a = run(
+        cfg,
+        whole.path(),
+        logs::open,
+        &mut Quiet,
+        &AtomicBool::new(false),
+    )
+    .expect("train");
     assert!(!a.summary.interrupted);
 
     let parts = tempfile::tempdir().expect("tmp");
@@ -111,10 +119,16 @@ fn assert_resume_is_bit_identical(cfg: &CheckedConfig) {
         at: 2,
         stop: stop.clone(),
     };
-    let b1 = run(cfg, parts.path(), &mut p, &stop).expect("first part");
+    let b1 = run(cfg, parts.path(), logs::open, &mut p, &stop).expect("first part");
     assert!(b1.summary.interrupted);
     assert_eq!(b1.summary.iterations, 2);
-    let b2 = resume(parts.path(), &mut Quiet, &AtomicBool::new(false)).expect("resume");
+    let b2 = resume(
+        parts.path(),
+        logs::open,
+        &mut Quiet,
+        &AtomicBool::new(false),
+    )
+    .expect("resume");
     assert!(!b2.summary.interrupted);
     assert_eq!(b2.summary.iterations, 4);
     assert_eq!(b2.summary.env_steps, a.summary.env_steps);
@@ -157,7 +171,14 @@ fn overlapped_runs_repeat_exactly_and_differ_from_synchronous_ones() {
     let overlap = small_config(&["run.pipeline=\"overlap\""]);
     let dirs: Vec<_> = (0..2).map(|_| tempfile::tempdir().expect("tmp")).collect();
     for d in &dirs {
-        run(&overlap, d.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
+        run(
+            &overlap,
+            d.path(),
+            logs::open,
+            &mut Quiet,
+            &AtomicBool::new(false),
+        )
+        .expect("train");
     }
     let (a, b) = (
         metrics_without_times(dirs[0].path()),
@@ -168,6 +189,7 @@ fn overlapped_runs_repeat_exactly_and_differ_from_synchronous_ones() {
     run(
         &small_config(&[]),
         sync.path(),
+        logs::open,
         &mut Quiet,
         &AtomicBool::new(false),
     )
@@ -188,8 +210,15 @@ fn a_resumed_run_that_had_finished_only_evaluates_again() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let cfg = small_config(&["run.iterations=1"]);
     let dir = tempfile::tempdir().expect("tmp");
-    let a = run(&cfg, dir.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
-    let b = resume(dir.path(), &mut Quiet, &AtomicBool::new(false)).expect("resume");
+    let a = run(
+        &cfg,
+        dir.path(),
+        logs::open,
+        &mut Quiet,
+        &AtomicBool::new(false),
+    )
+    .expect("train");
+    let b = resume(dir.path(), logs::open, &mut Quiet, &AtomicBool::new(false)).expect("resume");
     assert_eq!(b.summary.iterations, 1);
     assert_eq!(b.summary.env_steps, a.summary.env_steps);
     assert_eq!(a.summary.nmi.to_bits(), b.summary.nmi.to_bits());

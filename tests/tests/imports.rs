@@ -9,6 +9,9 @@
 //! (in `lib.rs` or a `mod.rs`) is followed to the file that defines it, so a facade
 //! module is not an edge of its own. Then the strongly connected components of the
 //! graph must all be single files.
+//!
+//! The same graph checks one layering rule of the design: the training core does not
+//! import the logs that sit above it (issue 41).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -440,6 +443,45 @@ fn envs_files_import_no_cycle() {
 fn learner_files_import_no_cycle() {
     assert_acyclic("learner/src/lib.rs");
     assert_acyclic("learner/src/main.rs");
+}
+
+/// Every edge from a file under one of `lower` (module paths from the crate root) to
+/// a file under one of `upper`, as `from -> to (path)` lines.
+fn edges_between(root: &str, lower: &[&str], upper: &[&str]) -> Vec<String> {
+    let ws = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let files = module_tree(&ws.join(root));
+    let under = |m: &ModPath, tops: &[&str]| m.first().is_some_and(|f| tops.contains(&f.as_str()));
+    let mut found = Vec::new();
+    for (from, info) in &files {
+        if !under(from, lower) {
+            continue;
+        }
+        for r in &info.refs {
+            let to = defining_file(&files, r, 0);
+            if under(&to, upper) {
+                found.push(format!(
+                    "{} -> {} (crate::{})",
+                    from.join("::"),
+                    to.join("::"),
+                    r.join("::")
+                ));
+            }
+        }
+    }
+    found
+}
+
+/// The training core (the loop, the objective, the evaluation) hands its records to
+/// the logs through `train::RecordSink` and `train::Progress`; it never names the run
+/// log, TensorBoard's writer, the progress printer or the sink that joins them.
+#[test]
+fn the_training_core_does_not_know_the_logs_above_it() {
+    let core = ["train", "objective", "eval"];
+    let logs = ["runlog", "tboard", "progress", "logs"];
+    let found = edges_between("learner/src/lib.rs", &core, &logs);
+    assert!(found.is_empty(), "{}", found.join("\n"));
+    // The check sees such edges: the logs do import the core.
+    assert!(!edges_between("learner/src/lib.rs", &logs, &core).is_empty());
 }
 
 #[test]

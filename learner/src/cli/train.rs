@@ -3,6 +3,7 @@
 use super::{ConfigArgs, ctrl_c_flag, input_err, input_if, input_if_corrupt, resolve};
 use anyhow::Result;
 use clap::Args;
+use ess_learner::logs;
 use ess_learner::progress::{JsonlProgress, ProgressEvent};
 use ess_learner::train::{IterationLog, Progress, run};
 use std::io::IsTerminal;
@@ -193,8 +194,10 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
         let mut progress =
             JsonlProgress::new(std::io::stdout().lock()).stop_when_reader_gone(shutdown.clone());
         let result = match args.resume {
-            Some(_) => ess_learner::train::resume_on(&out, backend, &mut progress, &shutdown),
-            None => run(&cfg, &out, &mut progress, &shutdown),
+            Some(_) => {
+                ess_learner::train::resume_on(&out, backend, logs::open, &mut progress, &shutdown)
+            }
+            None => run(&cfg, &out, logs::open, &mut progress, &shutdown),
         }
         .map_err(input_if::<ess_learner::train::TrainInputError>)
         .map_err(input_if::<ess_envs::DemoError>)
@@ -204,8 +207,10 @@ pub fn train(mut args: TrainArgs) -> Result<()> {
     }
     let mut progress = CliProgress::new(cfg.run.iterations);
     let result = match args.resume {
-        Some(_) => ess_learner::train::resume_on(&out, backend, &mut progress, &shutdown),
-        None => run(&cfg, &out, &mut progress, &shutdown),
+        Some(_) => {
+            ess_learner::train::resume_on(&out, backend, logs::open, &mut progress, &shutdown)
+        }
+        None => run(&cfg, &out, logs::open, &mut progress, &shutdown),
     }
     .map_err(input_if::<ess_learner::train::TrainInputError>)
     .map_err(input_if::<ess_envs::DemoError>)

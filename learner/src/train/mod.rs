@@ -8,7 +8,7 @@
 //! | policy reward with the updated heads (Eqs. 1, 3, 5, 9) | [`Trainer::policy_rewards`] | `stages.rs` |
 //! | GAE, PPO on policy and value, p(c) through Gumbel-softmax | [`Trainer::update_policy`] | `stages.rs` |
 //! | the paper's evaluation (NMI, ENT, normalised reward) | [`Trainer::evaluate`] | `stages.rs` |
-//! | `metrics.csv`, run log, progress; checkpoints | [`Trainer::record`], [`Trainer::checkpoint`] | this file |
+//! | `metrics.csv`, the logs above the loop ([`RecordSink`]), progress; checkpoints | [`Trainer::record`], [`Trainer::checkpoint`] | this file |
 //!
 //! [`Trainer::new`] (`setup.rs`) builds a run's state from its configuration, or from
 //! its latest checkpoint on `--resume` (a fresh run first clones the labeled
@@ -35,15 +35,15 @@ pub use data::{
 pub use ess_actor::actor_seed;
 pub use ess_proto::config::Backend;
 pub use records::{
-    CSV_HEADER, EncoderAccuracy, IterationLog, PhaseSeconds, Progress, Summary, write_atomic,
+    CSV_HEADER, EncoderAccuracy, IterationLog, OpenSink, PhaseSeconds, Progress, RecordSink,
+    ResumedAt, Summary, write_atomic,
 };
 pub use setup::Nets;
 pub use stages::Rewards;
 
 use crate::eval::Reference;
-use crate::runlog::RunLog;
 use anyhow::{Context, Result, anyhow};
-use ess_actor::{EvalEpisode, LatentSpec, PolicyWeights, RolloutSource};
+use ess_actor::{LatentSpec, PolicyWeights, RolloutSource};
 use ess_envs::{Demos, EnvSpec};
 use ess_proto::CheckedConfig;
 use ess_proto::config::Pipeline;
@@ -118,26 +118,26 @@ pub struct Trainer<'c> {
     resume_weights: Option<Arc<PolicyWeights>>,
     eval_env: Box<dyn ess_envs::Env>,
     st: LoopState,
-    /// Finished on every way out (drop), see [`crate::runlog`].
-    runlog: RunLog,
     csv: BufWriter<std::fs::File>,
-    /// TensorBoard's view of `metrics.csv` and the evaluations ([`crate::tboard`]).
-    board: crate::tboard::Board,
+    /// The logs above the loop (run log, TensorBoard: `crate::logs`).
+    sink: Box<dyn RecordSink>,
     started: Instant,
     /// When [`Trainer::train`] started its first iteration in this process.
     train_started: Instant,
 }
 
-/// Trains with `cfg`, writing into `out`; stops early (and still writes everything)
+/// Trains with `cfg`, writing into `out` (`metrics.csv`, checkpoints, `summary.json`,
+/// and the logs `logs` opens, e.g. `crate::logs::open`); stops early (and still writes everything)
 /// when `shutdown` is set: the current iteration finishes, a checkpoint is saved, the
 /// final evaluation runs and `summary.json` says `"interrupted": true`.
 pub fn run(
     cfg: &CheckedConfig,
     out: &Path,
+    logs: OpenSink,
     progress: &mut dyn Progress,
     shutdown: &AtomicBool,
 ) -> Result<RunOutput> {
-    let mut t = Trainer::new(cfg, out, progress, false)?;
+    let mut t = Trainer::new(cfg, out, logs, progress, false)?;
     let interrupted = t.train(progress, shutdown)?;
     t.finish(progress, interrupted)
 }
@@ -162,8 +162,13 @@ pub fn run_config(out: &Path) -> Result<CheckedConfig> {
 /// `metrics.csv`. The continued run is bit-identical to one never stopped, with actor
 /// threads or processes (unless the checkpoint holds no actor states, see
 /// [`crate::train::checkpoint::TrainState::actors`]).
-pub fn resume(out: &Path, progress: &mut dyn Progress, shutdown: &AtomicBool) -> Result<RunOutput> {
-    resume_on(out, None, progress, shutdown)
+pub fn resume(
+    out: &Path,
+    logs: OpenSink,
+    progress: &mut dyn Progress,
+    shutdown: &AtomicBool,
+) -> Result<RunOutput> {
+    resume_on(out, None, logs, progress, shutdown)
 }
 
 /// [`resume`], the update on `backend` when given (a checkpoint of either backend
@@ -171,6 +176,7 @@ pub fn resume(out: &Path, progress: &mut dyn Progress, shutdown: &AtomicBool) ->
 pub fn resume_on(
     out: &Path,
     backend: Option<ess_proto::config::Backend>,
+    logs: OpenSink,
     progress: &mut dyn Progress,
     shutdown: &AtomicBool,
 ) -> Result<RunOutput> {
@@ -179,7 +185,7 @@ pub fn resume_on(
         Some(b) => cfg.with_backend(b),
         None => cfg,
     };
-    let mut t = Trainer::new(&cfg, out, progress, true)?;
+    let mut t = Trainer::new(&cfg, out, logs, progress, true)?;
     let interrupted = t.train(progress, shutdown)?;
     t.finish(progress, interrupted)
 }
@@ -214,8 +220,9 @@ impl Trainer<'_> {
             if run.eval_every > 0 && it.is_multiple_of(run.eval_every) && it != run.iterations {
                 let (r, episodes) =
                     self.evaluate(it, run.eval_episodes_periodic, run.seed ^ 0xE7A1)?;
-                self.log_episodes(it, false, &episodes)?;
-                self.board.evaluation(self.st.env_steps, &r);
+                self.sink
+                    .episodes(it, false, &episodes, self.eval_env.as_mut())?;
+                self.sink.evaluation(self.st.env_steps, &r);
                 self.st
                     .curve
                     .push((self.st.env_steps, r.nmi, r.ent, r.normalized_reward));
@@ -292,35 +299,6 @@ impl Trainer<'_> {
         Ok(())
     }
 
-    /// Logs evaluation episodes in the run log, with the robot's poses replayed from
-    /// their recorded states on the evaluation env when it has a body model (the 3D
-    /// scene, [`crate::runlog::scene`]). A state the env refuses leaves the scene out
-    /// (with a warning), never the episodes.
-    fn log_episodes(
-        &mut self,
-        it: usize,
-        final_eval: bool,
-        episodes: &[EvalEpisode],
-    ) -> Result<()> {
-        if !self.runlog.logs_episodes(final_eval) {
-            return Ok(());
-        }
-        let scene = self.eval_env.scene();
-        let env = self.eval_env.as_mut();
-        let poses = match scene {
-            Some(_) => episodes
-                .iter()
-                .map(|ep| crate::runlog::scene::episode_poses(env, ep))
-                .collect::<Result<Vec<_>, _>>()
-                .inspect_err(|e| tracing::warn!("the run log's 3D scene is left out: {e}"))
-                .ok(),
-            None => None,
-        };
-        let drawn = scene.as_ref().zip(poses.as_deref());
-        self.runlog.eval_episodes(it, final_eval, episodes, drawn)?;
-        Ok(())
-    }
-
     /// The actors (not while they collect beside an update).
     fn actors(&mut self) -> Result<&mut dyn RolloutSource> {
         match self.actors.as_deref_mut() {
@@ -338,12 +316,12 @@ impl Trainer<'_> {
     /// `metrics.csv`.
     pub fn record(&mut self, log: IterationLog, progress: &mut dyn Progress) -> Result<()> {
         progress.iteration(&log);
-        self.runlog.iteration(&log)?;
+        self.sink.iteration(&log)?;
         if let Some(done) = self.st.pending.replace(log) {
             records::write_csv_row(&mut self.csv, &done)?;
-            self.board.row(&done);
+            self.sink.row(&done);
         }
-        if let Some(note) = self.board.failed() {
+        if let Some(note) = self.sink.note() {
             progress.message(&note);
         }
         Ok(())
@@ -401,7 +379,8 @@ impl Trainer<'_> {
         let done = self.st.iters_done;
         let (result, episodes) =
             self.evaluate(done, self.cfg.run.eval_episodes, self.cfg.run.seed ^ 0xF1AA)?;
-        self.log_episodes(done, true, &episodes)?;
+        self.sink
+            .episodes(done, true, &episodes, self.eval_env.as_mut())?;
         // The final evaluation completes the last iteration's row (no iteration ran: a
         // row of iteration 0 for the untrained policy).
         let mut last = self.st.pending.take().unwrap_or_else(|| IterationLog {
@@ -414,9 +393,9 @@ impl Trainer<'_> {
         last.normalized_reward = Some(result.normalized_reward);
         records::write_csv_row(&mut self.csv, &last)?;
         self.csv.flush()?;
-        self.board.row(&last);
-        self.board.evaluation(self.st.env_steps, &result);
-        self.runlog.iteration(&last)?;
+        self.sink.row(&last);
+        self.sink.evaluation(self.st.env_steps, &result);
+        self.sink.iteration(&last)?;
         let (cfg, k) = (self.cfg, self.dims.codes);
         if self.spec.name == "traj2d" {
             let png = self.out.join("trajectories.png");
@@ -429,9 +408,9 @@ impl Trainer<'_> {
         let curves = self.out.join("curves.png");
         crate::eval::report::plot_curves(&curves, &cfg.method.name, &self.st.curve)?;
         for png in ["trajectories.png", "curves.png"] {
-            self.board.figure(steps, &self.out.join(png));
+            self.sink.figure(steps, &self.out.join(png));
         }
-        if let Some(note) = self.board.failed() {
+        if let Some(note) = self.sink.note() {
             progress.message(&note);
         }
         let prior = self.nets.ppo.prior_probs();
@@ -457,9 +436,9 @@ impl Trainer<'_> {
             eval: result,
             interrupted,
         };
-        // The run log is complete before `summary.json` says the run is.
-        let Self { runlog, out, .. } = self;
-        runlog.finish()?;
+        // The logs are complete before `summary.json` says the run is.
+        let Self { sink, out, .. } = self;
+        sink.finish()?;
         let json = serde_json::to_string_pretty(&summary)?;
         write_atomic(&out.join("summary.json"), json.as_bytes())?;
         Ok(RunOutput { summary })

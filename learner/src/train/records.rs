@@ -1,8 +1,14 @@
 //! What a run writes about itself: one [`IterationLog`] per iteration (`metrics.csv`,
-//! the run log, the progress stream) and the [`Summary`] (`summary.json`).
+//! the run log, the progress stream) and the [`Summary`] (`summary.json`); and the two
+//! traits through which the loop hands them to what sits above it, [`Progress`] (the
+//! CLI's printer) and [`RecordSink`] (the run log and TensorBoard, `crate::logs`), so
+//! that the training core knows neither.
 
+use crate::eval::EvalResult;
 use anyhow::{Context, Result};
-use ess_proto::pb;
+use ess_actor::EvalEpisode;
+use ess_envs::Env;
+use ess_proto::{CheckedConfig, Chunk, pb};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::Path;
@@ -14,6 +20,53 @@ pub trait Progress {
     /// Free-form status message (set-up phases).
     fn message(&mut self, msg: &str);
 }
+
+/// Where a resumed run continues: what the logs reopen their files at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ResumedAt {
+    /// The checkpoint's iteration (records after it are dropped).
+    pub iteration: usize,
+    /// Env steps at that iteration.
+    pub env_steps: usize,
+}
+
+/// The logs a run keeps beside `metrics.csv` (`crate::logs`: the MCAP run log and
+/// TensorBoard's event file). The loop hands them its records in this order per
+/// iteration: the evaluation's [`episodes`](RecordSink::episodes) and
+/// [`evaluation`](RecordSink::evaluation) (when one ran), the
+/// [`iteration`](RecordSink::iteration), then the [`row`](RecordSink::row) of the
+/// iteration before (a row is complete once the next iteration ran).
+pub trait RecordSink {
+    /// An iteration as soon as it ran.
+    fn iteration(&mut self, log: &IterationLog) -> Result<()>;
+    /// A complete `metrics.csv` row.
+    fn row(&mut self, log: &IterationLog);
+    /// Iteration `iteration`'s rollout `chunks` with the policy reward of each of
+    /// their steps, in order (a sink keeps a sample, or nothing).
+    fn rollout(&mut self, iteration: usize, chunks: &[Chunk], rewards: &[f32]) -> Result<()>;
+    /// An evaluation's result, at `env_steps`.
+    fn evaluation(&mut self, env_steps: usize, result: &EvalResult);
+    /// An evaluation's episodes, of the policy of `iteration`; `env` is the env that
+    /// ran them (a sink that draws the robot replays their states on it).
+    fn episodes(
+        &mut self,
+        iteration: usize,
+        final_eval: bool,
+        episodes: &[EvalEpisode],
+        env: &mut dyn Env,
+    ) -> Result<()>;
+    /// A figure the run wrote (`curves.png`, `trajectories.png`), at `env_steps`.
+    fn figure(&mut self, env_steps: usize, path: &Path);
+    /// A failure the user should hear of once; training goes on without that log.
+    fn note(&mut self) -> Option<String>;
+    /// Completes the files (before `summary.json` says the run is complete).
+    fn finish(self: Box<Self>) -> Result<()>;
+}
+
+/// Opens a run's [`RecordSink`] in its directory: a fresh run's (`None`) or a resumed
+/// one's after its checkpoint.
+pub type OpenSink =
+    fn(cfg: &CheckedConfig, out: &Path, resumed: Option<ResumedAt>) -> Result<Box<dyn RecordSink>>;
 
 /// One row of `metrics.csv`: one per iteration, in order. The last iteration's row
 /// carries the final evaluation's `nmi`, `ent` and `normalized_reward` (the periodic

@@ -3,7 +3,7 @@
 
 use super::bc;
 use super::data::{Dims, ExpertData, ObsNorm, TrainInputError, load_or_generate_demos};
-use super::records::{CSV_HEADER, truncate_metrics};
+use super::records::{CSV_HEADER, OpenSink, RecordSink, ResumedAt, truncate_metrics};
 use super::{LoopState, Progress, Trainer};
 use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
 use crate::eval::Reference;
@@ -378,28 +378,33 @@ fn clone_labeled(
     }
 }
 
-/// The run log and `metrics.csv`, created (a fresh run) or reopened after the
-/// checkpoint's iteration (a resumed one).
+/// `metrics.csv`, created (a fresh run) or cut after the checkpoint's iteration (a
+/// resumed one), and the logs `logs` opens beside it.
 fn open_logs(
     cfg: &CheckedConfig,
     out: &Path,
+    logs: OpenSink,
     st: &LoopState,
     resuming: bool,
-) -> Result<(crate::runlog::RunLog, BufWriter<std::fs::File>)> {
+) -> Result<(Box<dyn RecordSink>, BufWriter<std::fs::File>)> {
     let metrics = out.join("metrics.csv");
-    let runlog = if resuming {
+    let sink = if resuming {
         truncate_metrics(&metrics, st.iters_done)?;
-        crate::runlog::RunLog::reopen(&out.join("run.mcap"), cfg, st.iters_done)?
+        let at = ResumedAt {
+            iteration: st.iters_done,
+            env_steps: st.env_steps,
+        };
+        logs(cfg, out, Some(at))?
     } else {
         std::fs::write(&metrics, format!("{CSV_HEADER}\n"))
             .with_context(|| format!("creating {}", metrics.display()))?;
-        crate::runlog::RunLog::create(&out.join("run.mcap"), cfg)?
+        logs(cfg, out, None)?
     };
     let csv = std::fs::OpenOptions::new()
         .append(true)
         .open(&metrics)
         .with_context(|| format!("opening {}", metrics.display()))?;
-    Ok((runlog, BufWriter::new(csv)))
+    Ok((sink, BufWriter::new(csv)))
 }
 
 impl<'c> Trainer<'c> {
@@ -409,6 +414,7 @@ impl<'c> Trainer<'c> {
     pub fn new(
         cfg: &'c CheckedConfig,
         out: &Path,
+        logs: OpenSink,
         progress: &mut dyn Progress,
         resuming: bool,
     ) -> Result<Self> {
@@ -481,12 +487,8 @@ impl<'c> Trainer<'c> {
             (st, None)
         };
         let fused = fused_backend(cfg, &nets, progress)?;
-        let (runlog, csv) = open_logs(cfg, out, &st, resuming)?;
-        let mut board = crate::tboard::Board::open(out, resuming.then_some(st.env_steps));
-        if !resuming {
-            board.config(&cfg.to_toml());
-        }
-        if let Some(note) = board.failed() {
+        let (mut sink, csv) = open_logs(cfg, out, logs, &st, resuming)?;
+        if let Some(note) = sink.note() {
             progress.message(&note);
         }
         Ok(Self {
@@ -506,9 +508,8 @@ impl<'c> Trainer<'c> {
             resume_weights,
             eval_env,
             st,
-            runlog,
             csv,
-            board,
+            sink,
             started,
             train_started: Instant::now(),
         })

@@ -229,7 +229,7 @@ impl Trainer<'_> {
             .collect();
         log.reward_mean =
             reward.iter().map(|&r| r as f64).sum::<f64>() / reward.len().max(1) as f64;
-        self.runlog.chunks(it, &r.chunks, &reward)?;
+        self.sink.rollout(it, &r.chunks, &reward)?;
         let (values, next_values) = values.split_at(n);
         Ok(Rewards {
             reward,

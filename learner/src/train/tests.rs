@@ -33,7 +33,14 @@ fn metrics_csv_has_one_row_per_iteration_and_the_final_evaluation_in_the_last() 
     }
     let cfg = b.build().expect("config");
     let dir = tempfile::tempdir().expect("tmp");
-    let out = run(&cfg, dir.path(), &mut Quiet, &AtomicBool::new(false)).expect("train");
+    let out = run(
+        &cfg,
+        dir.path(),
+        crate::logs::open,
+        &mut Quiet,
+        &AtomicBool::new(false),
+    )
+    .expect("train");
     let csv = std::fs::read_to_string(dir.path().join("metrics.csv")).expect("csv");
     let mut lines = csv.lines();
     assert_eq!(lines.next(), Some(CSV_HEADER));
@@ -67,14 +74,24 @@ fn resuming_a_directory_without_a_checkpoint_names_what_is_missing() {
         b.build().expect("config")
     };
     let dir = tempfile::tempdir().expect("tmp");
-    let e = resume(dir.path(), &mut Quiet, &AtomicBool::new(false))
-        .err()
-        .expect("no run there");
+    let e = resume(
+        dir.path(),
+        crate::logs::open,
+        &mut Quiet,
+        &AtomicBool::new(false),
+    )
+    .err()
+    .expect("no run there");
     assert!(format!("{e:#}").contains("config.toml"), "{e:#}");
     std::fs::write(dir.path().join("config.toml"), small().to_toml()).expect("w");
-    let e = resume(dir.path(), &mut Quiet, &AtomicBool::new(false))
-        .err()
-        .expect("no checkpoint");
+    let e = resume(
+        dir.path(),
+        crate::logs::open,
+        &mut Quiet,
+        &AtomicBool::new(false),
+    )
+    .err()
+    .expect("no checkpoint");
     assert!(format!("{e:#}").contains("no complete checkpoint"), "{e:#}");
 }
 
@@ -105,7 +122,7 @@ fn a_fresh_run_clones_the_labeled_demonstrations_only_when_asked() {
         let cfg = b.build().expect("config");
         let dir = tempfile::tempdir().expect("tmp");
         let mut p = Messages::default();
-        Trainer::new(&cfg, dir.path(), &mut p, false).expect("trainer");
+        Trainer::new(&cfg, dir.path(), crate::logs::open, &mut p, false).expect("trainer");
         p.0
     };
     let cloning = |m: &Vec<String>| {
@@ -156,7 +173,7 @@ fn iterations(
     range: std::ops::RangeInclusive<usize>,
 ) -> Vec<IterationLog> {
     let resuming = *range.start() > 1;
-    let mut t = Trainer::new(cfg, out, &mut Quiet, resuming).expect("trainer");
+    let mut t = Trainer::new(cfg, out, crate::logs::open, &mut Quiet, resuming).expect("trainer");
     assert_eq!(t.st.iters_done + 1, *range.start());
     assert_eq!(t.fused.is_some(), cfg.learner.backend == Backend::Fused);
     let mut rows = Vec::new();
