@@ -73,6 +73,49 @@ fn main() -> anyhow::Result<()> {
     };
     let mut nets = Nets::new(&cfg, d)?;
     let mut fused = Fused::new(nets.fused_view(), threads)?;
+    let kernels = if std::arch::is_x86_feature_detected!("avx512f") {
+        "AVX-512"
+    } else {
+        "AVX2"
+    };
+    println!("{env}: {threads} threads, {kernels} kernels");
+    let run = Run {
+        cfg: &cfg,
+        d,
+        steps,
+        only: &only,
+    };
+    if phase != "ppo" {
+        disc_phase(&run, &mut nets, &mut fused)?;
+    }
+    if phase != "disc" {
+        ppo_phase(&run, &mut nets, &mut fused)?;
+    }
+    Ok(())
+}
+
+/// What both phases read.
+struct Run<'a> {
+    cfg: &'a ess_proto::CheckedConfig,
+    d: Dims,
+    steps: usize,
+    /// `fused`, `tch` or empty (both).
+    only: &'a str,
+}
+
+/// Prints one timing: per step, and the arithmetic rate of `f` FLOP a step.
+fn report(name: &str, secs: f64, n: usize, f: f64) {
+    let per = secs / n as f64;
+    println!(
+        "  {name:<28} {:8.3} ms  {:7.1} GFLOP/s",
+        per * 1e3,
+        f / per / 1e9
+    );
+}
+
+/// The D/Q step on each backend.
+fn disc_phase(r: &Run, nets: &mut Nets, fused: &mut Fused) -> anyhow::Result<()> {
+    let (cfg, d, steps, only) = (r.cfg, r.d, r.steps, r.only);
     let (inp, k, b) = (
         (d.disc_cols + d.act) as i64,
         d.codes as i64,
@@ -87,13 +130,8 @@ fn main() -> anyhow::Result<()> {
     let dflop =
         3.0 * rows as f64 * flop(&dsizes) - 2.0 * rows as f64 * (inp as usize * dsizes[1]) as f64;
     println!(
-        "{env}: D {dsizes:?} on {rows} rows ({:.0} MFLOP a step), {threads} threads, {} kernels",
-        dflop / 1e6,
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            "AVX-512"
-        } else {
-            "AVX2"
-        }
+        "D {dsizes:?} on {rows} rows ({:.0} MFLOP a step)",
+        dflop / 1e6
     );
     let (gx, ex, lx) = (
         randn(&[5000, inp]),
@@ -111,134 +149,129 @@ fn main() -> anyhow::Result<()> {
         Vec::try_from(&ei)?,
         Vec::try_from(&li)?,
     );
-    let report = |name: &str, secs: f64, n: usize, f: f64| {
-        let per = secs / n as f64;
-        println!(
-            "  {name:<28} {:8.3} ms  {:7.1} GFLOP/s",
-            per * 1e3,
-            f / per / 1e9
-        );
-    };
-    if phase != "ppo" {
-        if only != "tch" {
-            let src = DiscSources {
-                gen_x: ess_learner::fused::floats(&gx)?,
-                gen_code: ess_learner::fused::floats(&gcode)?,
-                gen_eps: ess_learner::fused::floats(&geps)?,
-                expert_x: ess_learner::fused::floats(&ex)?,
-                expert_mode: ess_learner::fused::longs(&emode)?,
-                labeled_x: ess_learner::fused::floats(&lx)?,
-                labels: ess_learner::fused::longs(&labels)?,
-            };
-            let draw = DiscDraw {
-                gen_: &giv,
-                expert: &eiv,
-                labeled: &liv,
-                noise: &[],
-                instance_noise: &[],
-                report: false,
-            };
-            let mut step = || -> anyhow::Result<()> {
-                let mut opt = nets.dopt.flat_mut();
-                let (team, net) = (&fused.team, &fused.disc_net);
-                fused
-                    .disc
-                    .step(team, net, &mut opt, &src, &draw, &w, &lpv)?;
-                Ok(())
-            };
-            for _ in 0..10 {
-                step()?;
-            }
-            let t = Instant::now();
-            for _ in 0..steps {
-                step()?;
-            }
-            report("D/Q step, fused", t.elapsed().as_secs_f64(), steps, dflop);
-        }
-        if only != "fused" {
-            let none = idx(1, 0);
-            let one = || {
-                let batch = DiscBatch {
-                    gen_x: &gx.index_select(0, &gi),
-                    gen_code: &gcode.index_select(0, &gi),
-                    gen_eps: &geps.index_select(0, &gi),
-                    expert_x: &ex.index_select(0, &ei),
-                    expert_mode: &none,
-                    labeled_x: &lx.index_select(0, &li),
-                    labels: &labels.index_select(0, &li),
-                };
-                disc_objective(&nets.disc, &batch, &w, &lp)
-            };
-            for _ in 0..10 {
-                let t = one();
-                nets.dopt.zero_grad();
-                t.loss.backward();
-                nets.dopt.step();
-            }
-            let t0 = Instant::now();
-            for _ in 0..steps {
-                let t = one();
-                nets.dopt.zero_grad();
-                t.loss.backward();
-                nets.dopt.step();
-            }
-            report("D/Q step, tch", t0.elapsed().as_secs_f64(), steps, dflop);
-        }
-    }
-    if phase != "disc" {
-        let n = cfg.ppo.minibatch as i64 * 5;
-        let batch = PpoBatch {
-            obs: randn(&[n, d.obs as i64]),
-            eps: randn(&[n, 1]),
-            code: randn(&[n, k]).softmax(-1, Kind::Float),
-            gumbel: randn(&[n, k]),
-            pre_tanh: randn(&[n, d.act as i64]),
-            old_logp: randn(&[n]) - 2.0,
-            adv: randn(&[n]),
-            returns: randn(&[n]),
+    if only != "tch" {
+        let src = DiscSources {
+            gen_x: ess_learner::fused::floats(&gx)?,
+            gen_code: ess_learner::fused::floats(&gcode)?,
+            gen_eps: ess_learner::fused::floats(&geps)?,
+            expert_x: ess_learner::fused::floats(&ex)?,
+            expert_mode: ess_learner::fused::longs(&emode)?,
+            labeled_x: ess_learner::fused::floats(&lx)?,
+            labels: ess_learner::fused::longs(&labels)?,
         };
-        let pin = d.obs + 1 + d.codes;
-        let mut psizes = vec![pin];
-        psizes.extend(&cfg.ppo.hidden);
-        let mut vs = psizes.clone();
-        vs.push(1);
-        psizes.push(d.act);
-        let mb = cfg.ppo.minibatch as f64;
-        let pflop = 3.0 * mb * (flop(&psizes) + flop(&vs))
-            - 2.0 * mb * (pin * cfg.ppo.hidden[0]) as f64 * 2.0;
-        let per_update = cfg.ppo.epochs * 5;
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
-        let updates = (steps / per_update).max(2);
-        println!(
-            "PPO policy {psizes:?}, value {vs:?}, minibatch {mb} ({:.0} MFLOP a step)",
-            pflop / 1e6
+        let draw = DiscDraw {
+            gen_: &giv,
+            expert: &eiv,
+            labeled: &liv,
+            noise: &[],
+            instance_noise: &[],
+            report: false,
+        };
+        let mut step = || -> anyhow::Result<()> {
+            let mut opt = nets.dopt.flat_mut();
+            let (team, net) = (&fused.team, &fused.disc_net);
+            fused
+                .disc
+                .step(team, net, &mut opt, &src, &draw, &w, &lpv)?;
+            Ok(())
+        };
+        for _ in 0..10 {
+            step()?;
+        }
+        let t = Instant::now();
+        for _ in 0..steps {
+            step()?;
+        }
+        report("D/Q step, fused", t.elapsed().as_secs_f64(), steps, dflop);
+    }
+    if only != "fused" {
+        let none = idx(1, 0);
+        let one = || {
+            let batch = DiscBatch {
+                gen_x: &gx.index_select(0, &gi),
+                gen_code: &gcode.index_select(0, &gi),
+                gen_eps: &geps.index_select(0, &gi),
+                expert_x: &ex.index_select(0, &ei),
+                expert_mode: &none,
+                labeled_x: &lx.index_select(0, &li),
+                labels: &labels.index_select(0, &li),
+            };
+            disc_objective(&nets.disc, &batch, &w, &lp)
+        };
+        for _ in 0..10 {
+            let t = one();
+            nets.dopt.zero_grad();
+            t.loss.backward();
+            nets.dopt.step();
+        }
+        let t0 = Instant::now();
+        for _ in 0..steps {
+            let t = one();
+            nets.dopt.zero_grad();
+            t.loss.backward();
+            nets.dopt.step();
+        }
+        report("D/Q step, tch", t0.elapsed().as_secs_f64(), steps, dflop);
+    }
+    Ok(())
+}
+
+/// The PPO minibatch step on each backend.
+fn ppo_phase(r: &Run, nets: &mut Nets, fused: &mut Fused) -> anyhow::Result<()> {
+    let (cfg, d, steps, only) = (r.cfg, r.d, r.steps, r.only);
+    let k = d.codes as i64;
+    let n = cfg.ppo.minibatch as i64 * 5;
+    let batch = PpoBatch {
+        obs: randn(&[n, d.obs as i64]),
+        eps: randn(&[n, 1]),
+        code: randn(&[n, k]).softmax(-1, Kind::Float),
+        gumbel: randn(&[n, k]),
+        pre_tanh: randn(&[n, d.act as i64]),
+        old_logp: randn(&[n]) - 2.0,
+        adv: randn(&[n]),
+        returns: randn(&[n]),
+    };
+    let pin = d.obs + 1 + d.codes;
+    let mut psizes = vec![pin];
+    psizes.extend(&cfg.ppo.hidden);
+    let mut vs = psizes.clone();
+    vs.push(1);
+    psizes.push(d.act);
+    let mb = cfg.ppo.minibatch as f64;
+    let pflop =
+        3.0 * mb * (flop(&psizes) + flop(&vs)) - 2.0 * mb * (pin * cfg.ppo.hidden[0]) as f64 * 2.0;
+    let per_update = cfg.ppo.epochs * 5;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let updates = (steps / per_update).max(2);
+    println!(
+        "PPO policy {psizes:?}, value {vs:?}, minibatch {mb} ({:.0} MFLOP a step)",
+        pflop / 1e6
+    );
+    if only != "tch" {
+        nets.ppo.update_on(&batch, &mut rng, Some(fused))?;
+        let t = Instant::now();
+        for _ in 0..updates {
+            nets.ppo.update_on(&batch, &mut rng, Some(fused))?;
+        }
+        report(
+            "PPO step, fused",
+            t.elapsed().as_secs_f64(),
+            updates * per_update,
+            pflop,
         );
-        if only != "tch" {
-            nets.ppo.update_on(&batch, &mut rng, Some(&mut fused))?;
-            let t = Instant::now();
-            for _ in 0..updates {
-                nets.ppo.update_on(&batch, &mut rng, Some(&mut fused))?;
-            }
-            report(
-                "PPO step, fused",
-                t.elapsed().as_secs_f64(),
-                updates * per_update,
-                pflop,
-            );
-        }
-        if only != "fused" {
+    }
+    if only != "fused" {
+        nets.ppo.update(&batch, &mut rng);
+        let t = Instant::now();
+        for _ in 0..updates {
             nets.ppo.update(&batch, &mut rng);
-            let t = Instant::now();
-            for _ in 0..updates {
-                nets.ppo.update(&batch, &mut rng);
-            }
-            report(
-                "PPO step, tch",
-                t.elapsed().as_secs_f64(),
-                updates * per_update,
-                pflop,
-            );
         }
+        report(
+            "PPO step, tch",
+            t.elapsed().as_secs_f64(),
+            updates * per_update,
+            pflop,
+        );
     }
     Ok(())
 }

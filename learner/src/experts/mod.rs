@@ -239,11 +239,14 @@ fn load_start(
 
 /// The rollout source of an expert run: actor threads or processes, each stepping the
 /// plain env under mode `cfg.mode`'s task reward.
-fn expert_actors(
-    cfg: &ExpertTrainConfig,
-    latent: LatentSpec,
-    seeds: Vec<u64>,
-) -> Result<Box<dyn RolloutSource>> {
+fn expert_actors(cfg: &ExpertTrainConfig, seeds: Vec<u64>) -> Result<Box<dyn RolloutSource>> {
+    // One code slot, always zero: no latent (prior None keeps it zero).
+    let latent = LatentSpec {
+        prior: LatentPrior::None,
+        n_codes: 1,
+        tau: 1.0,
+        use_eps: false,
+    };
     Ok(match cfg.transport {
         ess_proto::config::ActorTransport::Threads => {
             let workers: Vec<Worker> = seeds
@@ -329,35 +332,18 @@ pub fn train_expert(
     progress: &mut dyn FnMut(&ExpertIteration),
     shutdown: &AtomicBool,
 ) -> Result<ExpertPolicy> {
-    let probe = make_plain_env(&cfg.env, cfg.n_modes)?;
-    let spec = probe.spec().clone();
-    if cfg.mode >= spec.n_modes {
-        bail!(ess_envs::EnvError::ModeOutOfRange {
-            mode: cfg.mode,
-            n_modes: spec.n_modes
-        });
-    }
-    if cfg.rollout_steps == 0 || cfg.actors == 0 {
-        bail!("rollout_steps and actors must be at least 1");
-    }
+    let spec = checked_spec(cfg)?;
     tch::set_num_threads(cfg.torch_threads.max(1) as i32);
     tch::manual_seed(cfg.seed as i64);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xE4BE57);
     let (od, ad) = (spec.obs_dim, spec.act_dim);
-    // One code slot, always zero: no latent (prior None keeps it zero).
-    let latent = LatentSpec {
-        prior: LatentPrior::None,
-        n_codes: 1,
-        tau: 1.0,
-        use_eps: false,
-    };
-    let input = od + 2;
+    // The policy reads `[obs, eps, code]`, eps and code held at zero.
     let mut vs = nn::VarStore::new(tch::Device::Cpu);
     let prior_vs = nn::VarStore::new(tch::Device::Cpu);
     let mut ppo = PpoLearner::new(
         &vs,
         &prior_vs,
-        input,
+        od + 2,
         ad,
         1,
         &cfg.ppo,
@@ -365,9 +351,6 @@ pub fn train_expert(
         1.0,
     )?;
     let mut stats = RunningStats::new(od);
-    if cfg.resume && cfg.init_from.is_some() {
-        bail!("resume and init_from exclude each other");
-    }
     let mut env_steps = load_start(cfg, &spec, &mut vs, &mut stats)?;
     let first_iteration = (env_steps / cfg.rollout_steps as u64) as usize + 1;
     let seeds: Vec<u64> = (0..cfg.actors)
@@ -378,7 +361,7 @@ pub fn train_expert(
                 .wrapping_add(i as u64)
         })
         .collect();
-    let mut actors = expert_actors(cfg, latent, seeds)?;
+    let mut actors = expert_actors(cfg, seeds)?;
     let mut csv = open_csv(cfg)?;
     let mut scaler = RewardScaler::default();
     let mut open = Vec::new();
@@ -426,21 +409,34 @@ pub fn train_expert(
         it += 1;
         // Save every 10 iterations and at the end (the state file is what resumes).
         if it.is_multiple_of(10) || env_steps >= cfg.steps || shutdown.load(Ordering::Relaxed) {
-            let e = save(cfg, &spec, &ppo, &stats, env_steps, &recent)?;
-            crate::tensor_file::save_var_store(&vs, &state_path(&cfg.out))?;
+            expert = Some(save(cfg, &spec, (&ppo, &vs), &stats, env_steps, &recent)?);
             csv.flush()?;
-            expert = Some(e);
         }
     }
     csv.flush()?;
     match expert {
         Some(e) => Ok(e),
-        None => {
-            let e = save(cfg, &spec, &ppo, &stats, env_steps, &recent)?;
-            crate::tensor_file::save_var_store(&vs, &state_path(&cfg.out))?;
-            Ok(e)
-        }
+        None => save(cfg, &spec, (&ppo, &vs), &stats, env_steps, &recent),
     }
+}
+
+/// The spec of the env `cfg` trains on, after the checks that need no training:
+/// the mode exists, at least one actor and step, `resume` without `init_from`.
+fn checked_spec(cfg: &ExpertTrainConfig) -> Result<ess_envs::EnvSpec> {
+    let spec = make_plain_env(&cfg.env, cfg.n_modes)?.spec().clone();
+    if cfg.mode >= spec.n_modes {
+        bail!(ess_envs::EnvError::ModeOutOfRange {
+            mode: cfg.mode,
+            n_modes: spec.n_modes
+        });
+    }
+    if cfg.rollout_steps == 0 || cfg.actors == 0 {
+        bail!("rollout_steps and actors must be at least 1");
+    }
+    if cfg.resume && cfg.init_from.is_some() {
+        bail!("resume and init_from exclude each other");
+    }
+    Ok(spec)
 }
 
 /// Creates `cfg.out`'s directory and opens its CSV: appending when resuming, else
@@ -505,10 +501,11 @@ pub(crate) fn expert_meta(
     }
 }
 
+/// Saves the expert file and the run's state file (the networks: what resumes).
 fn save(
     cfg: &ExpertTrainConfig,
     spec: &ess_envs::EnvSpec,
-    ppo: &PpoLearner,
+    (ppo, vs): (&PpoLearner, &nn::VarStore),
     stats: &RunningStats,
     env_steps: u64,
     recent: &[f64],
@@ -527,6 +524,7 @@ fn save(
     let e = ExpertPolicy::new(meta, w.mean.params().to_vec(), w.log_std, obs_mean, obs_std)
         .map_err(|r| anyhow::anyhow!("exported expert is inconsistent: {r}"))?;
     e.save(&cfg.out)?;
+    crate::tensor_file::save_var_store(vs, &state_path(&cfg.out))?;
     Ok(e)
 }
 

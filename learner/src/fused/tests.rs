@@ -23,10 +23,12 @@
 //! `ESS_FUSED_TRACE=1` prints every tensor's error, bound and largest elementwise
 //! error.
 
-use super::disc::{DiscDraw, DiscSources};
+use super::disc::{DiscDraw, DiscReport, DiscSources};
 use super::reward::RewardInputs;
 use super::*;
-use crate::objective::combined::{DiscBatch, DiscWeights, disc_objective, instance_noise};
+use crate::objective::combined::{
+    DiscBatch, DiscTerms, DiscWeights, disc_objective, instance_noise,
+};
 use crate::objective::reward::{RewardWeights, policy_reward};
 use crate::presets::{ConfigLayers, PRESETS};
 use crate::train::nets::{obs_columns, tensor_to_vec};
@@ -368,6 +370,11 @@ fn disc_step(cfg: &CheckedConfig, d: Dims, a: &mut Nets, b: &mut Nets, worst: &m
         .expect("fused step");
     check_grads("D", f.disc.grad(), &grads[1], 1.0, Some(&grads[0]), worst);
     compare_flat("D", &mut a.dopt, &mut b.dopt, worst);
+    check_disc_report(&rep, &t, &lp, worst);
+}
+
+/// The fused D/Q step's reported terms and p(c) gradient against tch's.
+fn check_disc_report(rep: &DiscReport, t: &DiscTerms, lp: &Tensor, worst: &mut Vec<Row>) {
     let scalar = |t: &Tensor| f64::try_from(t).unwrap() as f32;
     let opt = |t: &Option<Tensor>| t.as_ref().map(scalar);
     let pairs = [

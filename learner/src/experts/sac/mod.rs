@@ -42,26 +42,21 @@
 //! The replay keeps only the observation entries the networks read (`obs_prefix`), raw
 //! (normalised when a batch is drawn).
 
-use std::io::Write;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
-
 use anyhow::{Context, Result, bail};
-use ess_envs::{ExpertPolicy, make_plain_env};
+use ess_envs::ExpertPolicy;
 use ess_proto::config::SacConfig;
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use tch::nn::{Module, OptimizerConfig};
+use tch::nn::Module;
 use tch::{Kind, Tensor, nn};
 
-use crate::experts::{
-    ExpertIteration, ExpertTrainConfig, RunningStats, csv_path, expert_meta, last_csv_iteration,
-    open_csv, replay_path, state_path,
-};
+use crate::experts::{ExpertTrainConfig, RunningStats, expert_meta, replay_path, state_path};
 use crate::train::nets::{Mlp, tensor_2d, tensor_to_vec};
 
 mod replay;
+mod run;
 use replay::{Replay, gather_norm, read_named, write_via_tmp};
+pub use run::train_expert_sac;
 
 /// Replay states whose mean actor log std becomes the exported `log_std`.
 const EXPORT_STATES: usize = 10_000;
@@ -438,189 +433,6 @@ fn open_replay(
     })
 }
 
-/// Trains `cfg.mode`'s expert with SAC; `progress` sees one report per `log_every`
-/// env steps. Stops early (saving) when `shutdown` is set. Returns the saved expert.
-pub fn train_expert_sac(
-    cfg: &ExpertTrainConfig,
-    sc: &SacConfig,
-    progress: &mut dyn FnMut(&ExpertIteration),
-    shutdown: &AtomicBool,
-) -> Result<ExpertPolicy> {
-    if cfg.init_from.is_some() {
-        bail!(SacInputError::InitFrom);
-    }
-    let mut env = make_plain_env(&cfg.env, cfg.n_modes)?;
-    let spec = env.spec().clone();
-    if cfg.mode >= spec.n_modes {
-        bail!(ess_envs::EnvError::ModeOutOfRange {
-            mode: cfg.mode,
-            n_modes: spec.n_modes
-        });
-    }
-    let (od, ad) = (spec.obs_dim, spec.act_dim);
-    let p = crate::train::nets::obs_columns(sc.obs_prefix, od).ok_or_else(|| {
-        SacInputError::ObsPrefix {
-            prefix: sc.obs_prefix,
-            env: spec.name.clone(),
-            obs_dim: od,
-        }
-    })?;
-    tch::set_num_threads(cfg.torch_threads.max(1) as i32);
-    tch::manual_seed(cfg.seed as i64);
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5AC);
-    let sac = Sac::new(p, ad, sc)?;
-    let mut opts = [
-        nn::Adam::default().build(&sac.actor_vs, sc.lr)?,
-        nn::Adam::default().build(&sac.critic_vs, sc.lr)?,
-        nn::Adam::default().build(&sac.alpha_vs, sc.lr)?,
-    ];
-    let target_entropy = sc.target_entropy_per_dim * ad as f64;
-    let mut stats = RunningStats::new(od);
-    let mut env_steps = 0u64;
-    if cfg.resume {
-        let old = ExpertPolicy::load(&cfg.out)?;
-        old.check_fits(&spec, cfg.mode, &cfg.out)?;
-        load_state(&sac, &mut stats, &state_path(&cfg.out))?;
-        env_steps = old.meta.trained_steps;
-    }
-    let start_steps = env_steps;
-    let mut replay = open_replay(cfg, sc, (p, ad), env_steps)?;
-    // A fresh run explores at random; a resumed one without a saved buffer refills it
-    // with the policy before updating; one with a buffer updates at once.
-    let random_until = if cfg.resume {
-        0
-    } else {
-        sc.learning_starts as u64
-    };
-    let update_from = if replay.len >= sc.batch.max(1) {
-        env_steps
-    } else {
-        env_steps + sc.learning_starts.max(sc.batch) as u64
-    };
-    let mut csv = open_csv(cfg)?;
-    let log_every = sc.log_every as u64;
-    // Rows number on from the CSV's last (a stop between rows wrote a partial one).
-    let mut it = cfg
-        .resume
-        .then(|| last_csv_iteration(&csv_path(&cfg.out)))
-        .flatten()
-        .map_or(env_steps.div_ceil(log_every) as usize + 1, |i| i + 1);
-    let mut obs = vec![0.0f32; od];
-    let mut next = vec![0.0f32; od];
-    let mut act = vec![0.0f32; ad];
-    let mut rewards = vec![0.0f32; spec.n_modes];
-    // Episode seeds continue across a resume (they count from the resumed step).
-    let mut episode_seed = cfg.seed.wrapping_mul(7_919).wrapping_add(env_steps);
-    let mut reset_seed = || {
-        episode_seed = episode_seed.wrapping_add(1);
-        episode_seed
-    };
-    env.reset(reset_seed(), &mut obs)?;
-    stats.update(&obs);
-    let (mut ep_ret, mut ep_len) = (0.0f64, 0usize);
-    let mut done_eps: Vec<(f64, usize)> = Vec::new();
-    let mut recent: Vec<f64> = Vec::new();
-    let mut last = StepStats::default();
-    let mut t0 = Instant::now();
-    let mut expert = None;
-    while env_steps < cfg.steps {
-        if shutdown.load(Ordering::Relaxed) {
-            break;
-        }
-        // The normaliser as of this step, for acting and this step's update; the
-        // random-action steps before the first update need none.
-        let random = env_steps < random_until;
-        let updating = env_steps + 1 >= update_from;
-        let norm = (!random || updating).then(|| stats.mean_std());
-        match &norm {
-            Some((mean, std)) if !random => {
-                let x = gather_norm(&obs, od, p, &[0], mean, std);
-                let a = tch::no_grad(|| sac.actor.sample(&x).0);
-                act.copy_from_slice(&tensor_to_vec(&a));
-            }
-            _ => act
-                .iter_mut()
-                .for_each(|a| *a = rng.random_range(-1.0..1.0)),
-        }
-        let out = env.step(&act, &mut next)?;
-        env.task_rewards(&mut rewards);
-        let r = rewards[cfg.mode];
-        replay.push(&obs[..p], &act, r, &next[..p], out.terminated);
-        stats.update(&next);
-        env_steps += 1;
-        ep_ret += r as f64;
-        ep_len += 1;
-        if out.done() {
-            done_eps.push((ep_ret, ep_len));
-            recent.push(ep_ret);
-            let keep = recent.len().saturating_sub(100);
-            recent.drain(..keep);
-            (ep_ret, ep_len) = (0.0, 0);
-            env.reset(reset_seed(), &mut obs)?;
-            stats.update(&obs);
-        } else {
-            std::mem::swap(&mut obs, &mut next);
-        }
-        // (`update_from` is at least `batch` steps past the start: the replay holds a batch.)
-        if let (true, Some((mean, std))) = (env_steps >= update_from, &norm) {
-            for u in 0..sc.updates_per_step {
-                let want = env_steps.is_multiple_of(log_every) && u == 0;
-                let st = update(
-                    &sac,
-                    &mut opts,
-                    &replay,
-                    sc,
-                    target_entropy,
-                    mean,
-                    std,
-                    &mut rng,
-                    want,
-                );
-                if want {
-                    last = st;
-                }
-            }
-        }
-        let finished = env_steps >= cfg.steps || shutdown.load(Ordering::Relaxed);
-        if env_steps.is_multiple_of(log_every) || finished {
-            let (mean_return, mean_length) = super::episode_means(&done_eps);
-            done_eps.clear();
-            let report = ExpertIteration {
-                iteration: it,
-                env_steps,
-                mean_return,
-                mean_length,
-                seconds: t0.elapsed().as_secs_f64(),
-                entropy: last.entropy,
-            };
-            t0 = Instant::now();
-            report.write_csv_row(&mut csv)?;
-            progress(&report);
-            tracing::debug!(
-                alpha = sac.alpha(),
-                critic_loss = last.critic_loss,
-                "sac step {env_steps}"
-            );
-            it += 1;
-            if it.is_multiple_of(10) || finished {
-                expert = Some(save(
-                    cfg, &spec, &sac, &replay, p, &stats, env_steps, &recent,
-                )?);
-                csv.flush()?;
-            }
-        }
-    }
-    csv.flush()?;
-    let expert = match expert {
-        Some(e) => e,
-        None => save(cfg, &spec, &sac, &replay, p, &stats, env_steps, &recent)?,
-    };
-    if sc.save_replay && env_steps > start_steps && replay.len > 0 {
-        replay.save(&replay_path(&cfg.out), env_steps)?;
-    }
-    Ok(expert)
-}
-
 #[allow(clippy::too_many_arguments)]
 fn save(
     cfg: &ExpertTrainConfig,
@@ -646,6 +458,7 @@ fn save(
 mod tests {
     use super::*;
     use ess_envs::ExpertMeta;
+    use rand::SeedableRng;
 
     fn small() -> SacConfig {
         SacConfig {
