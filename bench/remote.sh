@@ -72,7 +72,7 @@ PY
 
 train local --actors 2
 rx0=$(cat /sys/class/net/$va/statistics/rx_bytes); tx0=$(cat /sys/class/net/$va/statistics/tx_bytes)
-ip netns exec "$ns" "$ess" actor-host --learner tls/10.99.1.1:17450 --name bench --actors 1 \
+ip netns exec "$ns" "$ess" actor-host --once --learner tls/10.99.1.1:17450 --name bench --actors 1 \
   --tls-ca ca.pem --tls-cert host.pem --tls-key host.key 2>host.log &
 host_pid=$!
 train remote --actors 1 --config remote.toml

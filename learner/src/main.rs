@@ -53,8 +53,8 @@ enum Cmd {
     Serve(ServeArgs),
     /// Talk to a job server: submit, list, get, watch, stop, resume jobs.
     Job(JobArgs),
-    /// Run this machine's actor processes for a learner on another machine (its
-    /// `[remote]` config), over zenoh with mutual TLS.
+    /// Run this machine's actor processes for learners on other machines (their
+    /// `[remote]` config), one run after another, over zenoh with mutual TLS.
     ActorHost(cli::actor_host::ActorHostArgs),
     /// Table 1 view of finished runs: a row per run, mean ± std per env and method
     /// beside the paper's value (Markdown); for Walker2d and Humanoid runs also each

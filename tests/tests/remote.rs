@@ -3,8 +3,9 @@
 //! certificates made by `openssl`: a run with one local actor and one actor on each of
 //! two hosts trains to the same numbers as three local actors; a host whose link is
 //! cut mid-run is dropped with a warning and the run finishes on the others; a host may
-//! join mid-run; a host whose certificate another CA signed is refused. Needs root
-//! (network namespaces).
+//! join mid-run; a host whose certificate another CA signed is refused (these need root:
+//! network namespaces). A host without `--once` serves one run after another until
+//! Ctrl-C (on this machine's loopback, no root).
 
 use ess_tests::pki::Pki;
 use ess_tests::{SMOKE, actor_bin, ess, ess_bin};
@@ -78,9 +79,18 @@ impl Drop for Netns {
     }
 }
 
-/// `ess actor-host` named `name` with one actor, in `ns` (or here), dialling `learner`
-/// with `cert` (under `pki`); a host whose certificate is refused gives up after 3 s.
+/// `ess actor-host --once` named `name` with one actor, in `ns` (or here), dialling
+/// `learner` with `cert` (under `pki`); a host whose certificate is refused gives up
+/// after 3 s.
 fn actor_host(ns: Option<&Netns>, learner: &str, name: &str, pki: &Pki, cert: &str) -> Child {
+    host_command(ns, learner, name, pki, cert)
+        .arg("--once")
+        .spawn()
+        .expect("starting ess actor-host")
+}
+
+/// The `ess actor-host` command of [`actor_host`], without `--once`.
+fn host_command(ns: Option<&Netns>, learner: &str, name: &str, pki: &Pki, cert: &str) -> Command {
     let connect = if cert == "stranger" { "3" } else { "20" };
     let mut cmd = match ns {
         Some(ns) => {
@@ -109,9 +119,8 @@ fn actor_host(ns: Option<&Netns>, learner: &str, name: &str, pki: &Pki, cert: &s
     .env("ESS_ACTOR_BIN", actor_bin())
     .env("RUST_LOG", "info")
     .stdout(Stdio::null())
-    .stderr(Stdio::piped())
-    .spawn()
-    .expect("starting ess actor-host")
+    .stderr(Stdio::piped());
+    cmd
 }
 
 fn free_port() -> u16 {
@@ -324,6 +333,52 @@ fn hosts_in_other_namespaces_train_like_local_actors_survive_a_cut_and_refuse_st
     let (code, slog) = host_log(stranger, 20);
     assert_ne!(code, Some(0), "the stranger is refused: {slog}");
     assert!(slog.contains("reaching the learner"), "{slog}");
+}
+
+#[test]
+fn a_host_serves_one_run_after_another_until_ctrl_c() {
+    let tmp = tempfile::tempdir().unwrap();
+    let pki = Pki::new();
+    let port = free_port();
+    let cfg = remote_config(tmp.path(), port, &["hs"], &pki);
+    let learner = format!("tls/127.0.0.1:{port}");
+    let mut host = host_command(None, &learner, "hs", &pki, "client")
+        .spawn()
+        .expect("starting ess actor-host");
+    for run in ["first", "second"] {
+        let out = tmp.path().join(run);
+        let o = Command::new(ess_bin())
+            .args(train_args(
+                &out,
+                &["--actors", "1", "--config", cfg.to_str().unwrap()],
+            ))
+            .env("RUST_LOG", "warn,ess_learner::remote=info")
+            .output()
+            .unwrap();
+        let log = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{run} run: {log}");
+        assert!(
+            log.contains("actor host joined host=hs"),
+            "the host serves the {run} run: {log}"
+        );
+        assert!(!log.contains("actor host lost"), "{log}");
+        assert_eq!(
+            host.try_wait().unwrap(),
+            None,
+            "the host waits for the next run"
+        );
+    }
+    let pid = nix::unistd::Pid::from_raw(host.id() as i32);
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGINT).unwrap();
+    let (code, log) = host_log(host, 20);
+    assert_eq!(code, Some(0), "Ctrl-C ends the host: {log}");
+    assert_eq!(
+        log.matches("actor processes started for the run").count(),
+        2,
+        "{log}"
+    );
+    assert!(log.contains("waiting for the next run"), "{log}");
+    assert!(!log.contains("without STOP"), "{log}");
 }
 
 #[test]

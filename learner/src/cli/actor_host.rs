@@ -1,5 +1,5 @@
-//! `ess actor-host`: this machine's actor processes for a learner on another machine
-//! (`ess_learner::remote`).
+//! `ess actor-host`: this machine's actor processes for learners on other machines, one
+//! run after another (`ess_learner::remote`).
 
 use super::{ctrl_c_flag, input_err};
 use anyhow::Result;
@@ -36,6 +36,10 @@ pub struct ActorHostArgs {
     /// Seconds of silence after which the learner counts as lost.
     #[arg(long, default_value_t = 5.0)]
     timeout_s: f64,
+    /// Serve one run and exit (0 when the run ended, 1 when the learner was lost),
+    /// instead of waiting for the next run until Ctrl-C (e.g. a batch job's step).
+    #[arg(long)]
+    once: bool,
 }
 
 fn hostname() -> String {
@@ -79,6 +83,7 @@ pub fn actor_host(a: ActorHostArgs) -> Result<()> {
         tls_key: a.tls_key,
         connect: seconds("--connect-s", a.connect_s)?,
         timeout: seconds("--timeout-s", a.timeout_s)?,
+        once: a.once,
     };
     let stop = ctrl_c_flag()?;
     run_host(&args, &stop).map_err(|e| match e {

@@ -1,8 +1,16 @@
-//! `ess actor-host`: one machine's actor processes serving a learner elsewhere. The host
-//! dials the learner (mutual TLS), announces itself with a liveliness token carrying its
-//! name and actor count, and answers the learner's requests until the run ends (STOP:
-//! exit 0) or the learner is lost (its token expires: error). Its actors are an
-//! [`ShmActors`] like the learner's own, so they are supervised the same way.
+//! `ess actor-host`: one machine's actor processes serving learners elsewhere, one run
+//! after another. The host dials the learner (mutual TLS), announces itself with a
+//! liveliness token carrying its name and actor count, and answers the learner's
+//! requests until the run ends (STOP) or the learner is lost (its token expires). Then
+//! it stops that run's actors and dials again for the next run, until Ctrl-C; with
+//! `once` it exits instead (0 after STOP, an error when the learner was lost). Its
+//! actors are an [`ShmActors`] like the learner's own, so they are supervised the same
+//! way.
+//!
+//! Only the first dial is held to `connect` (a wrong address or a certificate the
+//! learner refuses is an error); between runs the host keeps dialling in short tries,
+//! so it waits for the next learner as long as it runs. After STOP it first waits for
+//! the ended learner to leave, so it does not join that one again.
 
 use super::wire::{Assign, HOST_TOKENS, LEARNER_TOKEN, Rpc, encode_chunk, host_token, rpc_key};
 use super::{RemoteError, Side, TlsFiles, session_config, zerr};
@@ -15,8 +23,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use zenoh::Wait;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
 use zenoh::query::Query;
-use zenoh::sample::SampleKind;
+use zenoh::sample::{Sample, SampleKind};
 
 /// What `ess actor-host` was given.
 #[derive(Debug, Clone)]
@@ -37,14 +47,57 @@ pub struct HostArgs {
     pub connect: Duration,
     /// Silence after which the learner counts as lost (zenoh's lease).
     pub timeout: Duration,
+    /// Serve one run and exit, instead of waiting for the next.
+    pub once: bool,
 }
 
 /// How long one wait for a request lasts before the host looks at the learner's token
 /// and its stop flag again.
 const POLL: Duration = Duration::from_millis(200);
 
-/// Serves one run; returns when it ends (STOP) or `stop` is set.
+/// How long one dial lasts while the host waits for the next run.
+const REDIAL: Duration = Duration::from_secs(2);
+/// Longest wait after STOP for the ended learner to leave.
+const LEAVE_GRACE: Duration = Duration::from_secs(60);
+
+/// How one run's session ended.
+enum RunEnd {
+    /// The learner sent STOP.
+    Stopped,
+    /// `stop` was set (Ctrl-C).
+    Interrupted,
+}
+
+/// Serves runs until `stop` is set (or, with `once`, one run); see the module doc.
 pub fn run_host(a: &HostArgs, stop: &AtomicBool) -> Result<(), RemoteError> {
+    let mut session = dial(a, a.connect)?;
+    loop {
+        let end = serve_run(a, &session, stop);
+        let _ = session.close().wait();
+        match end {
+            Ok(RunEnd::Interrupted) => return Ok(()),
+            Ok(RunEnd::Stopped) if a.once => return Ok(()),
+            Err(e) if a.once => return Err(e),
+            Ok(RunEnd::Stopped) => {}
+            Err(e) => {
+                tracing::warn!(host = %a.name, "the run ended without STOP: {e}");
+                std::thread::sleep(REDIAL);
+            }
+        }
+        tracing::info!(host = %a.name, learner = %a.learner, "waiting for the next run");
+        session = loop {
+            if stop.load(Ordering::Relaxed) {
+                return Ok(());
+            }
+            if let Ok(s) = dial(a, REDIAL) {
+                break s;
+            }
+        };
+    }
+}
+
+/// A session with the learner at `a.learner`, dialled for at most `connect`.
+fn dial(a: &HostArgs, connect: Duration) -> Result<zenoh::Session, RemoteError> {
     let tls = TlsFiles {
         ca: &a.tls_ca,
         cert: &a.tls_cert,
@@ -52,15 +105,24 @@ pub fn run_host(a: &HostArgs, stop: &AtomicBool) -> Result<(), RemoteError> {
     };
     let side = Side::Host {
         learner: &a.learner,
-        connect: a.connect,
+        connect,
     };
     let fields = ["--tls-ca", "--tls-cert", "--tls-key"];
     let cfg = session_config(side, &tls, fields, a.timeout)?;
-    let session = zenoh::open(cfg).wait().map_err(zerr(format!(
+    zenoh::open(cfg).wait().map_err(zerr(format!(
         "reaching the learner at {} (nothing listens there, or the TLS handshake failed: \
          check that --tls-cert is signed by the run's CA)",
         a.learner
-    )))?;
+    )))
+}
+
+/// Serves the run of the learner `session` reached, until STOP, the learner's loss (an
+/// error) or `stop`.
+fn serve_run(
+    a: &HostArgs,
+    session: &zenoh::Session,
+    stop: &AtomicBool,
+) -> Result<RunEnd, RemoteError> {
     let learner = session
         .liveliness()
         .declare_subscriber(LEARNER_TOKEN)
@@ -72,7 +134,7 @@ pub fn run_host(a: &HostArgs, stop: &AtomicBool) -> Result<(), RemoteError> {
         .wait()
         .map_err(zerr("declaring the request queryable"))?;
     // Announced last, when requests can be answered.
-    let _token = session
+    let token = session
         .liveliness()
         .declare_token(host_token(&a.name, a.actors))
         .wait()
@@ -95,10 +157,25 @@ pub fn run_host(a: &HostArgs, stop: &AtomicBool) -> Result<(), RemoteError> {
             continue;
         };
         if !answer(a, &q, &mut served)? {
-            return Ok(());
+            // Gone from the ended run's hosts, then wait for its learner to leave.
+            drop((token, rpc));
+            wait_for_leave(&learner, stop);
+            return Ok(RunEnd::Stopped);
         }
     }
-    Ok(())
+    Ok(RunEnd::Interrupted)
+}
+
+/// Waits (at most [`LEAVE_GRACE`]) until the learner's token goes.
+fn wait_for_leave(learner: &Subscriber<FifoChannelHandler<Sample>>, stop: &AtomicBool) {
+    let deadline = std::time::Instant::now() + LEAVE_GRACE;
+    while std::time::Instant::now() < deadline && !stop.load(Ordering::Relaxed) {
+        match learner.recv_timeout(POLL) {
+            Ok(Some(s)) if s.kind() == SampleKind::Delete => return,
+            Ok(_) => {}
+            Err(_) => return,
+        }
+    }
 }
 
 /// Answers one request; false once the run is over.
