@@ -297,6 +297,59 @@ impl RemoteActors {
         Ok(slots.into_iter().flatten().collect())
     }
 
+    /// One request: `split` (a share per actor: the local actors', then each host's in
+    /// `hosts` order) asked of the hosts and collected locally. Returns the chunks and
+    /// the steps of the hosts that failed (they are dropped).
+    fn round(
+        &mut self,
+        weights: &Arc<PolicyWeights>,
+        split: &[usize],
+    ) -> Result<(Vec<Chunk>, usize), ActorError> {
+        self.request_id += 1;
+        let n_local = self.local.n_actors();
+        let msg = weights_msg(
+            weights,
+            &self.setup.template.latent(),
+            &self.setup.template.run,
+        );
+        let mut asked = Vec::new();
+        let mut at = n_local;
+        for h in &self.hosts {
+            let share = &split[at..at + h.actors];
+            at += h.actors;
+            let steps = share.iter().sum::<usize>();
+            if steps == 0 {
+                continue;
+            }
+            let rpc = Rpc::Collect {
+                steps: steps as u64,
+                request_id: self.request_id,
+                weights: msg.clone(),
+            };
+            let rx = self.query(&h.name, &rpc, ANSWER_TIMEOUT);
+            asked.push((h.name.clone(), h.first, share.to_vec(), rx));
+        }
+        let local_steps = split[..n_local].iter().sum();
+        let mut out = match local_steps {
+            0 => Vec::new(),
+            n => self.local.collect(weights.clone(), n)?,
+        };
+        let mut lost = 0;
+        for (name, first, share, rx) in asked {
+            let got = rx
+                .map_err(|e| e.to_string())
+                .and_then(|rx| self.gather(&name, &rx, first, &share, weights));
+            match got {
+                Ok(chunks) => out.extend(chunks),
+                Err(why) => {
+                    self.drop_host(&name, &why);
+                    lost += share.iter().sum::<usize>();
+                }
+            }
+        }
+        Ok((out, lost))
+    }
+
     /// An error if `name`'s token went; other events wait in the backlog.
     fn watch_tokens(&mut self, name: &str) -> Result<(), String> {
         while let Ok(Some(s)) = self.joins.try_recv() {
@@ -327,54 +380,27 @@ impl RolloutSource for RemoteActors {
         self.local.n_actors() + self.hosts.iter().map(|h| h.actors).sum::<usize>()
     }
 
+    /// The rollout split over every actor as [`split_steps`] splits it locally; the
+    /// share of a host lost during it is split again over the local actors and the
+    /// hosts that answered, until every step is collected.
     fn collect(
         &mut self,
         weights: Arc<PolicyWeights>,
         steps: usize,
     ) -> Result<Vec<Chunk>, ActorError> {
         self.handle_tokens()?;
-        let n_local = self.local.n_actors();
         let split = split_steps(steps, self.n_actors());
-        self.request_id += 1;
-        let msg = weights_msg(
-            &weights,
-            &self.setup.template.latent(),
-            &self.setup.template.run,
-        );
-        let mut asked = Vec::new();
-        let mut at = n_local;
-        for h in &self.hosts {
-            let share = &split[at..at + h.actors];
-            let rpc = Rpc::Collect {
-                steps: share.iter().sum::<usize>() as u64,
-                request_id: self.request_id,
-                weights: msg.clone(),
-            };
-            let rx = self.query(&h.name, &rpc, ANSWER_TIMEOUT);
-            asked.push((h.name.clone(), h.first, share.to_vec(), rx));
-            at += h.actors;
-        }
-        let local_steps = split[..n_local].iter().sum();
-        let mut out = self.local.collect(weights.clone(), local_steps)?;
-        let mut refill = 0;
-        for (name, first, share, rx) in asked {
-            let got = rx
-                .map_err(|e| e.to_string())
-                .and_then(|rx| self.gather(&name, &rx, first, &share, &weights));
-            match got {
-                Ok(chunks) => out.extend(chunks),
-                Err(why) => {
-                    self.drop_host(&name, &why);
-                    refill += share.iter().sum::<usize>();
-                }
-            }
-        }
-        if refill > 0 {
+        let (mut out, mut lost) = self.round(&weights, &split)?;
+        while lost > 0 {
             tracing::warn!(
-                steps = refill,
-                "collecting a lost host's share on the local actors"
+                steps = lost,
+                hosts = self.hosts.len(),
+                "collecting a lost host's share on the remaining actors"
             );
-            out.extend(self.local.collect(weights, refill)?);
+            let split = split_steps(lost, self.n_actors());
+            let (more, again) = self.round(&weights, &split)?;
+            out.extend(more);
+            lost = again;
         }
         Ok(out)
     }

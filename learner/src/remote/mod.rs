@@ -13,8 +13,8 @@
 //! of its global index and the rollout is split over all of them as
 //! [`ess_actor::split_steps`] splits it locally, so a run with hosts collects the same
 //! chunks as the same number of actors on one machine. A host that is lost (its token
-//! expires, its answer fails) is dropped with a warning and its share is collected again
-//! from the local actors; a host may join at any rollout.
+//! expires, its answer fails) is dropped with a warning and its share is split again over
+//! the local actors and the hosts that answered; a host may join at any rollout.
 //!
 //! **Why zenoh directly, not iceoryx2's zenoh tunnel.** The tunnel is not published for
 //! iceoryx2 0.10 (the last one, `iceoryx2-services-tunnel` 0.9.3, cannot open 0.10's
