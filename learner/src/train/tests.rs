@@ -74,24 +74,18 @@ fn resuming_a_directory_without_a_checkpoint_names_what_is_missing() {
         b.build().expect("config")
     };
     let dir = tempfile::tempdir().expect("tmp");
-    let e = resume(
-        dir.path(),
-        crate::logs::open,
-        &mut Quiet,
-        &AtomicBool::new(false),
-    )
-    .err()
-    .expect("no run there");
+    let resume_there = || {
+        resume(
+            dir.path(),
+            crate::logs::open,
+            &mut Quiet,
+            &AtomicBool::new(false),
+        )
+    };
+    let e = resume_there().err().expect("no run there");
     assert!(format!("{e:#}").contains("config.toml"), "{e:#}");
     std::fs::write(dir.path().join("config.toml"), small().to_toml()).expect("w");
-    let e = resume(
-        dir.path(),
-        crate::logs::open,
-        &mut Quiet,
-        &AtomicBool::new(false),
-    )
-    .err()
-    .expect("no checkpoint");
+    let e = resume_there().err().expect("no checkpoint");
     assert!(format!("{e:#}").contains("no complete checkpoint"), "{e:#}");
 }
 
