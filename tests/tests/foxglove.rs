@@ -45,6 +45,18 @@ with open(sys.argv[1], "rb") as f:
 json.dump(out, sys.stdout)
 "#;
 
+/// `ess replay RUN/run.mcap --episode 0 --mcap OUT`.
+fn replay_first_episode(run: &std::path::Path, out: &std::path::Path) -> std::process::Output {
+    ess(&[
+        "replay",
+        &run.join("run.mcap").display().to_string(),
+        "--episode",
+        "0",
+        "--mcap",
+        &out.display().to_string(),
+    ])
+}
+
 #[test]
 fn a_reacher_run_log_plays_its_episodes_as_foxglove_scenes() {
     let d = tempfile::tempdir().unwrap();
@@ -130,14 +142,7 @@ fn a_reacher_run_log_plays_its_episodes_as_foxglove_scenes() {
     );
     // `ess replay --mcap`: the re-simulated episode 0 alone, the same poses as logged.
     let ep_mcap = d.path().join("ep0.mcap");
-    let r = ess(&[
-        "replay",
-        &run.join("run.mcap").display().to_string(),
-        "--episode",
-        "0",
-        "--mcap",
-        &ep_mcap.display().to_string(),
-    ]);
+    let r = replay_first_episode(&run, &ep_mcap);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let out = python(READ_WITH_MCAP_AND_FOXGLOVE, &[ep_mcap.as_os_str()]);
     assert!(
@@ -163,14 +168,7 @@ fn a_reacher_run_log_plays_its_episodes_as_foxglove_scenes() {
     let mut args = vec!["train", "--actors", "0", "--out", &t2d_s];
     args.extend_from_slice(SMOKE);
     assert!(ess(&args).status.success());
-    let r = ess(&[
-        "replay",
-        &t2d.join("run.mcap").display().to_string(),
-        "--episode",
-        "0",
-        "--mcap",
-        &d.path().join("x.mcap").display().to_string(),
-    ]);
+    let r = replay_first_episode(&t2d, &d.path().join("x.mcap"));
     assert_eq!(r.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&r.stderr).contains("no bodies to draw"));
 }

@@ -89,8 +89,10 @@ pub fn run_host(a: &HostArgs, stop: &AtomicBool) -> Result<(), RemoteError> {
             if stop.load(Ordering::Relaxed) {
                 return Ok(());
             }
-            if let Ok(s) = dial(a, REDIAL) {
-                break s;
+            match dial(a, REDIAL) {
+                Ok(s) => break s,
+                // A dial that fails at once (a TLS file gone) must not spin.
+                Err(_) => std::thread::sleep(POLL),
             }
         };
     }
@@ -157,9 +159,12 @@ fn serve_run(
             continue;
         };
         if !answer(a, &q, &mut served)? {
-            // Gone from the ended run's hosts, then wait for its learner to leave.
+            // Gone from the ended run's hosts; a host that serves the next run first
+            // waits for this run's learner to leave.
             drop((token, rpc));
-            wait_for_leave(&learner, stop);
+            if !a.once {
+                wait_for_leave(&learner, stop);
+            }
             return Ok(RunEnd::Stopped);
         }
     }
