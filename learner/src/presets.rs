@@ -231,12 +231,16 @@ pub struct ResolveError {
 impl ConfigLayers {
     /// The checked configuration, resolved exactly as `ess train` does: a first pass
     /// learns which env the layers select, a second puts that env's defaults layer under
-    /// them; the env must be constructible.
+    /// them; the env must be constructible. Only the second pass is checked, so a key
+    /// that is valid only beside the env's defaults (Humanoid's
+    /// `method.qc_reward_floor`, which needs its `qc_reward_entropy`) is accepted.
     pub fn resolve(&self) -> Result<ess_proto::CheckedConfig, ResolveError> {
-        let first = self.resolve_with(None)?;
-        let cfg = match env_defaults(&first.env.name) {
-            Some(layer) => self.resolve_with(Some((&first.env.name, layer)))?,
-            None => first,
+        let first = self.layered(None)?;
+        let env = first.env_name().map(str::to_string);
+        let layer = env.as_deref().and_then(|e| Some((e, env_defaults(e)?)));
+        let cfg = match layer {
+            Some(layer) => self.build(&self.layered(Some(layer))?)?,
+            None => self.build(&first)?,
         };
         if let Err(e) = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes) {
             let key = match &e {
@@ -258,10 +262,11 @@ impl ConfigLayers {
         }
     }
 
-    fn resolve_with(
+    /// Every layer merged, with `env_layer` (env name, text) under them, unchecked.
+    fn layered(
         &self,
         env_layer: Option<(&str, &str)>,
-    ) -> Result<ess_proto::CheckedConfig, ResolveError> {
+    ) -> Result<ess_proto::config::ConfigBuilder, ResolveError> {
         let err = |layer: Layer, e: &dyn std::fmt::Display| ResolveError {
             message: e.to_string(),
             layer,
@@ -318,6 +323,14 @@ impl ConfigLayers {
             b.set(&format!("run.seed={seed}"))
                 .map_err(|e| err(Layer::Seed, &e))?;
         }
+        Ok(b)
+    }
+
+    /// Deserializes and checks `b`, blaming the layer that set the failing key.
+    fn build(
+        &self,
+        b: &ess_proto::config::ConfigBuilder,
+    ) -> Result<ess_proto::CheckedConfig, ResolveError> {
         b.build().map_err(|e| match &e {
             ConfigError::OutOfRange { key, .. }
             | ConfigError::UnknownKey { key, .. }
@@ -439,6 +452,22 @@ mod tests {
                 assert_eq!(c.method.name, *name, "{env}");
             }
         }
+    }
+
+    #[test]
+    fn a_set_key_may_lean_on_the_env_layer_it_sits_over() {
+        // Humanoid's layer sets method.qc_reward_entropy, which the floor needs;
+        // Traj2D's does not, and there the --set that asks for it is blamed.
+        let layers = |env: &str| ConfigLayers {
+            env: Some(env.into()),
+            set: vec!["method.qc_reward_floor=true".into()],
+            ..Default::default()
+        };
+        let c = layers("humanoid").resolve().expect("humanoid");
+        assert!(c.method.qc_reward_floor && c.method.qc_reward_entropy);
+        let e = layers("traj2d").resolve().unwrap_err();
+        assert!(matches!(e.layer, Layer::Set(0)), "{:?}", e.layer);
+        assert!(e.message.contains("qc_reward_entropy"), "{}", e.message);
     }
 
     #[test]

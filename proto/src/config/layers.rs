@@ -140,6 +140,11 @@ impl ConfigBuilder {
         Ok(self)
     }
 
+    /// The `env.name` the layers merged so far select, if it is a string.
+    pub fn env_name(&self) -> Option<&str> {
+        self.table.get("env")?.get("name")?.as_str()
+    }
+
     /// Deserializes and checks the merged configuration.
     pub fn build(&self) -> Result<CheckedConfig, ConfigError> {
         let cfg: TrainConfig = self
