@@ -361,7 +361,7 @@ impl DiscStep {
             &h,
             &mut d,
             (e, g),
-            (f(w.disc), f(w.label_smoothing)),
+            (f(w.disc), f(w.label_smoothing), f(w.policy_target)),
             draw.report,
             s,
         );

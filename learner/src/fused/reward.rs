@@ -151,7 +151,7 @@ fn rewards(
     out.reward.clear();
     out.disc_term.clear();
     for j in 0..w {
-        let x = heads[j];
+        let x = heads[j] / rw.disc_temperature as f32;
         let dterm = if rw.disc_logit { x } else { math::softplus(x) };
         let mut r = dterm * rw.disc as f32;
         if rw.qc != 0.0 {

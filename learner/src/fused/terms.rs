@@ -143,19 +143,19 @@ fn softmax(h: &Heads<'_, &[f32]>, c: Cols, s: &mut Scratch) {
 }
 
 /// Eq. 1, [`crate::objective::disc_bce::disc_bce`]: `mean_E BCE(logit, 1 - smoothing)
-/// + mean_G softplus(logit)`, where `BCE(x, t) = t softplus(-x) + (1 - t) softplus(x)`;
+/// + mean_G BCE(logit, policy_target)` (`softplus(logit)` at target 0), where `BCE(x, t) = t softplus(-x) + (1 - t) softplus(x)`;
 /// gradient `(sigmoid(x) - t) / rows`. The value (a logarithm per row) only when
 /// `value` (the step that is logged); else 0.
 pub fn disc_bce(
     h: &Heads<'_, &[f32]>,
     d: &mut Heads<'_, &mut [f32]>,
     (expert, gen_): (Cols, Cols),
-    (w, smoothing): (f32, f32),
+    (w, smoothing, policy_target): (f32, f32, f32),
     value: bool,
     s: &mut Scratch,
 ) -> f64 {
     let mut total = 0.0f64;
-    for (c, target) in [(expert, 1.0 - smoothing), (gen_, 0.0)] {
+    for (c, target) in [(expert, 1.0 - smoothing), (gen_, policy_target)] {
         if c.len == 0 {
             continue;
         }
@@ -523,24 +523,29 @@ mod tests {
 
     #[test]
     fn disc_bce_is_eq_1_with_its_gradient() {
-        for smoothing in [0.0, 0.1] {
-            disc_bce_matches_tch(smoothing);
+        for (smoothing, policy_target) in [(0.0, 0.0), (0.1, 0.0), (0.1, 0.2)] {
+            disc_bce_matches_tch(smoothing, policy_target);
         }
     }
 
-    fn disc_bce_matches_tch(smoothing: f32) {
+    fn disc_bce_matches_tch(smoothing: f32, policy_target: f32) {
         let o = outputs();
         let mut g = vec![0.0; o.len()];
         let v = disc_bce(
             &Heads::new(&o[..], N, K),
             &mut Heads::new(&mut g[..], N, K),
             (E, G),
-            (0.7, smoothing),
+            (0.7, smoothing, policy_target),
             true,
             &mut Scratch::default(),
         );
         let (e, p) = (leaf(&o, 0, 1, E), leaf(&o, 0, 1, G));
-        let t = objective::disc_bce::disc_bce(&e.view([-1]), &p.view([-1]), smoothing.into());
+        let t = objective::disc_bce::disc_bce(
+            &e.view([-1]),
+            &p.view([-1]),
+            smoothing.into(),
+            policy_target.into(),
+        );
         (&t * 0.7).backward();
         let mut want = vec![0.0; o.len()];
         place(&e.grad(), 0, 1, E, &mut want);

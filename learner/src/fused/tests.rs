@@ -588,7 +588,24 @@ fn d_regularisers_match_tch() {
     // Label smoothing and instance noise (drawn before the contrastive noise on both).
     run_all_with(
         "reacher",
-        &["disc.label_smoothing=0.1", "disc.input_noise=0.3"],
+        &[
+            "disc.label_smoothing=0.1",
+            "disc.label_smoothing_policy=0.2",
+            "disc.input_noise=0.3",
+        ],
+    );
+}
+
+#[test]
+fn disc_reward_temperature_matches_tch() {
+    // Both forms of D's reward term, read at a temperature.
+    run_all_with("humanoid", &["method.disc_reward_temperature=7.5"]);
+    run_all_with(
+        "traj2d",
+        &[
+            "method.disc_reward_temperature=0.5",
+            "method.disc_reward=\"neg-log-one-minus-d\"",
+        ],
     );
 }
 

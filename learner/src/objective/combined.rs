@@ -72,6 +72,8 @@ pub struct DiscWeights {
     pub rim_l2: f64,
     /// D's target on expert rows is `1 - label_smoothing` (`disc.label_smoothing`).
     pub label_smoothing: f64,
+    /// D's target on generated rows (`disc.label_smoothing_policy`).
+    pub policy_target: f64,
     /// Std of the instance noise on generated and expert rows (`disc.input_noise`).
     pub input_noise: f64,
 }
@@ -95,6 +97,7 @@ impl DiscWeights {
             rim_marginal_kl: m.rim_marginal_kl,
             rim_l2: m.rim_l2,
             label_smoothing: 0.0,
+            policy_target: 0.0,
             input_noise: 0.0,
         }
     }
@@ -103,6 +106,7 @@ impl DiscWeights {
     pub fn with_disc(self, d: &DiscConfig) -> Self {
         Self {
             label_smoothing: d.label_smoothing,
+            policy_target: d.label_smoothing_policy,
             input_noise: d.input_noise,
             ..self
         }
@@ -117,6 +121,7 @@ impl RewardWeights {
         Self {
             disc_logit: m.disc_reward == DiscReward::Logit,
             disc: m.reward_disc,
+            disc_temperature: m.disc_reward_temperature,
             qc: m.reward_qc * info,
             qc_offset: if m.qc_reward_entropy {
                 crate::eval::metrics::entropy(prior.iter().map(|&p| f64::from(p)))
@@ -242,7 +247,7 @@ pub fn disc_objective(
     let og_qc = part(&out.qc_logits, 0, n_gen);
     let oe_qc = part(&out.qc_logits, n_gen, n_exp);
 
-    let bce = disc_bce(&oe_d, &og_d, w.label_smoothing);
+    let bce = disc_bce(&oe_d, &og_d, w.label_smoothing, w.policy_target);
     let mut loss = &bce * w.disc;
     if w.grad_penalty > 0.0 {
         loss += r1_penalty(&expert_x, &oe_d) * w.grad_penalty;
@@ -409,7 +414,7 @@ mod tests {
         );
         let r = rim(&oe.qc_logits, &log_prior(), &disc.encoder_params());
         let z2 = disc.forward(&noisy).qc_logits;
-        let want = disc_bce(&oe.d_logit, &og.d_logit, 0.0) * 1.0
+        let want = disc_bce(&oe.d_logit, &og.d_logit, 0.0, 0.0) * 1.0
             + r1_penalty(&xe, &oe.d_logit) * 0.3
             + qeps_mae(&og.qeps, &d.gen_eps) * 1.0
             + soft_cross_entropy(&og.qc_logits, &d.gen_code) * 0.7

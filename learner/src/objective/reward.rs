@@ -19,6 +19,9 @@ pub struct RewardWeights {
     pub disc_logit: bool,
     /// Discriminator term.
     pub disc: f64,
+    /// D's logit is divided by this before the form is applied
+    /// (`method.disc_reward_temperature`; 1: the paper's).
+    pub disc_temperature: f64,
     /// Latent skill term.
     pub qc: f64,
     /// Constant added to `log Q_c` before weighting (`H(c)`, or 0).
@@ -52,13 +55,10 @@ pub fn policy_reward(
     r
 }
 
-/// The discriminator term alone (unweighted).
+/// The discriminator term alone (unweighted), read at `w.disc_temperature`.
 pub fn disc_term(w: RewardWeights, d_logit: &Tensor) -> Tensor {
-    if w.disc_logit {
-        d_logit.shallow_clone()
-    } else {
-        d_logit.softplus()
-    }
+    let x = d_logit / w.disc_temperature;
+    if w.disc_logit { x } else { x.softplus() }
 }
 
 #[cfg(test)]
@@ -71,6 +71,7 @@ mod tests {
         let w = RewardWeights {
             disc_logit: false,
             disc: 1.0,
+            disc_temperature: 1.0,
             qc: 0.5,
             qc_offset: 0.0,
             qc_floor: false,
@@ -88,11 +89,37 @@ mod tests {
     }
 
     #[test]
+    fn the_temperature_divides_the_logit_before_the_form() {
+        let mut w = RewardWeights {
+            disc_logit: false,
+            disc: 1.0,
+            disc_temperature: 10.0,
+            qc: 0.0,
+            qc_offset: 0.0,
+            qc_floor: false,
+            qeps: 0.0,
+        };
+        // A sure D (logits -20 and -10): exp-small at T = 1, ln(1 + e^-2) and
+        // ln(1 + e^-1) at T = 10.
+        let d = Tensor::from_slice(&[-20.0f32, -10.0]);
+        let got = |w| Vec::<f32>::try_from(disc_term(w, &d)).unwrap();
+        let want = [(1.0 + (-2f32).exp()).ln(), (1.0 + (-1f32).exp()).ln()];
+        for (g, w) in got(w).iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "{g} vs {w}");
+        }
+        w.disc_logit = true;
+        assert_eq!(got(w), vec![-2.0, -1.0]);
+        w.disc_temperature = 1.0;
+        assert_eq!(got(w), vec![-20.0, -10.0]);
+    }
+
+    #[test]
     fn entropy_offset_makes_a_chance_level_q_c_reward_zero() {
         // Q_c uniform over 4 codes and H(c) = ln 4: the bound log Q + H(c) is 0.
         let w = RewardWeights {
             disc_logit: true,
             disc: 0.0,
+            disc_temperature: 1.0,
             qc: 3.0,
             qc_offset: 4f64.ln(),
             qc_floor: false,
@@ -112,6 +139,7 @@ mod tests {
         let mut w = RewardWeights {
             disc_logit: true,
             disc: 0.0,
+            disc_temperature: 1.0,
             qc: 1.0,
             qc_offset: 2f64.ln(),
             qc_floor: true,

@@ -115,6 +115,7 @@ impl MethodConfig {
             finite_nonneg(k, v)?;
         }
         finite_pos("method.contrastive_temperature", m.contrastive_temperature)?;
+        finite_pos("method.disc_reward_temperature", m.disc_reward_temperature)?;
         range(
             m.contrastive_batch >= 2,
             "method.contrastive_batch",
@@ -260,6 +261,12 @@ impl DiscConfig {
             (0.0..0.5).contains(&q.label_smoothing),
             "disc.label_smoothing",
             q.label_smoothing,
+            "must be in [0, 0.5)",
+        )?;
+        range(
+            (0.0..0.5).contains(&q.label_smoothing_policy),
+            "disc.label_smoothing_policy",
+            q.label_smoothing_policy,
             "must be in [0, 0.5)",
         )?;
         finite_nonneg("disc.input_noise", q.input_noise)?;

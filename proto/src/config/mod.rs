@@ -296,6 +296,13 @@ pub struct MethodConfig {
     pub reward_disc: f64,
     /// Form of the discriminator term.
     pub disc_reward: DiscReward,
+    /// Temperature T of the discriminator term: the form reads `logit / T` instead of
+    /// D's logit, i.e. `-log(1 - sigmoid(logit / T))` (1: the paper's). D is trained as
+    /// Eq. 1 says; only the policy's reading of it changes. Where D is sure of every
+    /// generated step (Humanoid: accuracy 1.00 from iteration ~10), `-log(1 - D)` is
+    /// ~`exp(logit)` and spans orders of magnitude across steps; `T > 1` keeps it
+    /// positive and monotone in the logit but of comparable size on every step.
+    pub disc_reward_temperature: f64,
     /// Policy reward weight of the env's mode-agnostic shared reward (moving and staying
     /// upright on Walker2d and Humanoid; `Env::shared_reward` in `ess-envs`). The
     /// paper's code adds it to every method's reward with `reward_t_coef` 0.005; 0
@@ -348,6 +355,7 @@ impl Default for MethodConfig {
             reward_qeps: 0.5,
             reward_disc: 1.0,
             disc_reward: DiscReward::Logit,
+            disc_reward_temperature: 1.0,
             reward_shared: 0.0,
             prior_score_coef: 0.0,
             disc_code_reweight: false,
@@ -499,6 +507,12 @@ pub struct DiscConfig {
     /// paper's setting). A D that may not be sure keeps finite logits on expert-like
     /// generated steps.
     pub label_smoothing: f64,
+    /// The other side of label smoothing: D's target on generated rows is this instead
+    /// of 0 (0: off, the paper's setting). D's optimum on a step only the policy makes
+    /// is then `D = label_smoothing_policy`, not 0, so its logit stays finite there and
+    /// the policy's `-log(1 - D)` keeps a floor of `-log(1 - label_smoothing_policy)`
+    /// per step instead of vanishing where D is sure (Humanoid, bench/humanoid.md).
+    pub label_smoothing_policy: f64,
     /// Instance noise (Sønderby et al. 2017): std of Gaussian noise added to the
     /// normalised generated and unlabeled expert rows of every D/Q step (0: off, the
     /// paper's setting), so the two sets overlap and D cannot separate them perfectly.
@@ -515,6 +529,7 @@ impl Default for DiscConfig {
             batch: 1000,
             obs_prefix: 0,
             label_smoothing: 0.0,
+            label_smoothing_policy: 0.0,
             input_noise: 0.0,
         }
     }
