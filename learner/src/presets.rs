@@ -236,8 +236,7 @@ impl ConfigLayers {
     /// `method.qc_reward_floor`, which needs its `qc_reward_entropy`) is accepted.
     pub fn resolve(&self) -> Result<ess_proto::CheckedConfig, ResolveError> {
         let first = self.layered(None)?;
-        let env = first.env_name().map(str::to_string);
-        let layer = env.as_deref().and_then(|e| Some((e, env_defaults(e)?)));
+        let layer = first.env_name().and_then(|e| Some((e, env_defaults(e)?)));
         let cfg = match layer {
             Some(layer) => self.build(&self.layered(Some(layer))?)?,
             None => self.build(&first)?,

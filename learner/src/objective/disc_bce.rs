@@ -16,11 +16,11 @@ pub fn disc_bce(
     smoothing: f64,
     policy_target: f64,
 ) -> Tensor {
-    let ones = expert_logit.ones_like() * (1.0 - smoothing);
-    let zeros = policy_logit.ones_like() * policy_target;
-    expert_logit.binary_cross_entropy_with_logits::<Tensor>(&ones, None, None, Reduction::Mean)
+    let expert_t = expert_logit.ones_like() * (1.0 - smoothing);
+    let policy_t = policy_logit.ones_like() * policy_target;
+    expert_logit.binary_cross_entropy_with_logits::<Tensor>(&expert_t, None, None, Reduction::Mean)
         + policy_logit.binary_cross_entropy_with_logits::<Tensor>(
-            &zeros,
+            &policy_t,
             None,
             None,
             Reduction::Mean,

@@ -257,18 +257,12 @@ impl DiscConfig {
         )?;
         finite_pos("disc.lr", q.lr)?;
         range(q.batch >= 2, "disc.batch", q.batch, "must be >= 2")?;
-        range(
-            (0.0..0.5).contains(&q.label_smoothing),
-            "disc.label_smoothing",
-            q.label_smoothing,
-            "must be in [0, 0.5)",
-        )?;
-        range(
-            (0.0..0.5).contains(&q.label_smoothing_policy),
-            "disc.label_smoothing_policy",
-            q.label_smoothing_policy,
-            "must be in [0, 0.5)",
-        )?;
+        for (k, v) in [
+            ("disc.label_smoothing", q.label_smoothing),
+            ("disc.label_smoothing_policy", q.label_smoothing_policy),
+        ] {
+            range((0.0..0.5).contains(&v), k, v, "must be in [0, 0.5)")?;
+        }
         finite_nonneg("disc.input_noise", q.input_noise)?;
         Ok(())
     }
