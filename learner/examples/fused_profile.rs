@@ -61,16 +61,7 @@ fn main() -> anyhow::Result<()> {
     let spec = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes)?
         .spec()
         .clone();
-    let d = Dims {
-        obs: spec.obs_dim,
-        act: spec.act_dim,
-        codes: cfg.env.n_modes,
-        disc_cols: spec.obs_dim.min(if cfg.disc.obs_prefix == 0 {
-            spec.obs_dim
-        } else {
-            cfg.disc.obs_prefix
-        }),
-    };
+    let d = Dims::new(&cfg, &spec.name, spec.obs_dim, spec.act_dim)?;
     let mut nets = Nets::new(&cfg, d)?;
     let mut fused = Fused::new(nets.fused_view(), threads)?;
     let kernels = if std::arch::is_x86_feature_detected!("avx512f") {
@@ -116,11 +107,7 @@ fn report(name: &str, secs: f64, n: usize, f: f64) {
 /// The D/Q step on each backend.
 fn disc_phase(r: &Run, nets: &mut Nets, fused: &mut Fused) -> anyhow::Result<()> {
     let (cfg, d, steps, only) = (r.cfg, r.d, r.steps, r.only);
-    let (inp, k, b) = (
-        (d.disc_cols + d.act) as i64,
-        d.codes as i64,
-        cfg.disc.batch as i64,
-    );
+    let (inp, k, b) = (d.disc_inp() as i64, d.codes as i64, cfg.disc.batch as i64);
     let w = DiscWeights::at(&cfg.method, 200);
     let labeled = if w.qc_labeled > 0.0 { b } else { 0 };
     let rows = 2 * b + labeled;

@@ -14,7 +14,7 @@ use ess_proto::CheckedConfig;
 
 use crate::train::checkpoint;
 use crate::train::data::{Dims, load_or_generate_demos};
-use crate::train::nets::{export_policy, obs_columns};
+use crate::train::nets::export_policy;
 use crate::train::setup::{Nets, rollout_env};
 
 /// The policy of the run in `out` at its latest checkpoint, its config and the
@@ -30,12 +30,7 @@ pub fn run_policy(out: &Path) -> Result<(PolicyWeights, CheckedConfig, std::path
     let spec = rollout_env(&cfg)?.spec().clone();
     let demos = load_or_generate_demos(&cfg)?;
     let (mean, std) = crate::eval::classifier::feature_stats(&demos.unlabeled.obs, spec.obs_dim);
-    let dims = Dims {
-        obs: spec.obs_dim,
-        act: spec.act_dim,
-        codes: cfg.env.n_modes,
-        disc_cols: obs_columns(cfg.disc.obs_prefix, spec.obs_dim).unwrap_or(spec.obs_dim),
-    };
+    let dims = Dims::new(&cfg, &spec.name, spec.obs_dim, spec.act_dim)?;
     let mut nets = Nets::new(&cfg, dims)?;
     for (vs, name) in [(&mut nets.vs, "policy"), (&mut nets.prior_vs, "prior")] {
         let p = dir.join(format!("{name}.safetensors"));

@@ -31,7 +31,7 @@ use crate::objective::combined::{
 };
 use crate::objective::reward::{RewardWeights, policy_reward};
 use crate::presets::{ConfigLayers, PRESETS};
-use crate::train::nets::{obs_columns, tensor_to_vec};
+use crate::train::nets::tensor_to_vec;
 use crate::train::ppo::PpoBatch;
 use crate::train::{Dims, Nets};
 use ess_proto::CheckedConfig;
@@ -55,12 +55,7 @@ fn config(env: &str, preset: &str, set: &[&str]) -> CheckedConfig {
 fn dims(cfg: &CheckedConfig) -> Dims {
     let env = ess_envs::make_plain_env(&cfg.env.name, cfg.env.n_modes).expect("env");
     let s = env.spec();
-    Dims {
-        obs: s.obs_dim,
-        act: s.act_dim,
-        codes: cfg.env.n_modes,
-        disc_cols: obs_columns(cfg.disc.obs_prefix, s.obs_dim).expect("prefix"),
-    }
+    Dims::new(cfg, &s.name, s.obs_dim, s.act_dim).expect("prefix")
 }
 
 fn randn(shape: &[i64]) -> Tensor {
@@ -152,7 +147,7 @@ fn twins(cfg: &CheckedConfig, d: Dims) -> (Nets, Nets) {
         let k = d.codes as i64;
         a.ppo.prior_logits.copy_(&(randn(&[k]) * 0.5));
     });
-    let inp = (d.disc_cols + d.act) as i64;
+    let inp = d.disc_inp() as i64;
     let w = DiscWeights::at(&cfg.method, 200);
     let lp = a.ppo.prior_logits.log_softmax(-1, Kind::Float).detach();
     for _ in 0..2 {
@@ -263,7 +258,7 @@ fn compare_flat(
 
 /// One D/Q step on both backends.
 fn disc_step(cfg: &CheckedConfig, d: Dims, a: &mut Nets, b: &mut Nets, worst: &mut Vec<Row>) {
-    let inp = (d.disc_cols + d.act) as i64;
+    let inp = d.disc_inp() as i64;
     let (k, batch) = (d.codes as i64, cfg.disc.batch as i64);
     let (gx, ex, lx) = (randn(&[1500, inp]), randn(&[3000, inp]), randn(&[400, inp]));
     let gcode = randn(&[1500, k]).softmax(-1, Kind::Float);
@@ -472,7 +467,7 @@ fn ppo_step(d: Dims, a: &mut Nets, b: &mut Nets, worst: &mut Vec<Row>) {
 /// The reward pass on both backends.
 fn rewards(cfg: &CheckedConfig, d: Dims, b: &mut Nets, worst: &mut Vec<Row>) {
     let n = 700i64;
-    let (k, inp) = (d.codes as i64, (d.disc_cols + d.act) as i64);
+    let (k, inp) = (d.codes as i64, d.disc_inp() as i64);
     let x = randn(&[n, inp]) * 2.0;
     let code = randn(&[n, k]).softmax(-1, Kind::Float);
     let eps = Tensor::rand([n], (Kind::Float, Device::Cpu)) * 2.0 - 1.0;
@@ -594,6 +589,13 @@ fn d_regularisers_match_tch() {
             "disc.input_noise=0.3",
         ],
     );
+}
+
+#[test]
+fn a_state_only_discriminator_matches_tch() {
+    // D, Q_c and Q_eps on the observation alone, with and without an obs prefix.
+    run_all_with("humanoid", &["disc.actions=false"]);
+    run_all_with("reacher", &["disc.actions=false", "disc.obs_prefix=4"]);
 }
 
 #[test]

@@ -142,6 +142,7 @@ mod tests {
             act: act_dim,
             codes: k,
             disc_cols: obs_dim,
+            disc_act: act_dim,
         };
         let loss = warm_start(&mut ppo, &split, &norm, (d, true), (400, 64), &mut rng)
             .expect("labeled data");
@@ -184,6 +185,7 @@ mod tests {
             act: 1,
             codes: 2,
             disc_cols: 1,
+            disc_act: 1,
         };
         assert_eq!(
             warm_start(&mut ppo, &empty, &norm, (d, true), (10, 8), &mut rng),

@@ -2,7 +2,7 @@
 //! normaliser, the rollout as tensors, and the minibatch draws.
 
 use super::records::EncoderAccuracy;
-use crate::train::nets::{Discriminator, tensor_2d};
+use crate::train::nets::{Discriminator, obs_columns, tensor_2d};
 use anyhow::{Result, bail};
 use ess_actor::{PolicyWeights, RolloutSource};
 use ess_envs::{DemoSpec, Demos, generate_demos};
@@ -77,8 +77,8 @@ pub fn load_or_generate_demos(cfg: &CheckedConfig) -> Result<Demos> {
     }
 }
 
-/// Widths the stages need: observation, action, codes, and the observation entries
-/// D reads (`disc.obs_prefix`).
+/// Widths the stages need: observation, action, codes, and the observation and action
+/// entries D reads (`disc.obs_prefix`, `disc.actions`).
 #[derive(Debug, Clone, Copy)]
 pub struct Dims {
     /// Observation width.
@@ -89,6 +89,39 @@ pub struct Dims {
     pub codes: usize,
     /// Observation entries D, Q_c and Q_eps read.
     pub disc_cols: usize,
+    /// Action entries they read: `act`, or 0 with `disc.actions = false`.
+    pub disc_act: usize,
+}
+
+impl Dims {
+    /// The widths of a run of `cfg` on an env with `obs`/`act` entries; the error names
+    /// `disc.obs_prefix` when it is longer than the observation.
+    pub fn new(
+        cfg: &CheckedConfig,
+        env: &str,
+        obs: usize,
+        act: usize,
+    ) -> Result<Self, TrainInputError> {
+        let disc_cols = obs_columns(cfg.disc.obs_prefix, obs).ok_or_else(|| {
+            TrainInputError::DiscObsPrefix {
+                prefix: cfg.disc.obs_prefix,
+                env: env.to_string(),
+                obs_dim: obs,
+            }
+        })?;
+        Ok(Self {
+            obs,
+            act,
+            codes: cfg.env.n_modes,
+            disc_cols,
+            disc_act: if cfg.disc.actions { act } else { 0 },
+        })
+    }
+
+    /// Width of one D input row, `[norm(s)[..disc_cols], a[..disc_act]]`.
+    pub fn disc_inp(&self) -> usize {
+        self.disc_cols + self.disc_act
+    }
 }
 
 /// The observation normaliser (the unlabeled demonstrations' mean and std).
@@ -108,10 +141,14 @@ impl ObsNorm {
     }
 }
 
-/// Discriminator inputs `[norm(s)[..cols], a]` from normalised observations and
-/// actions (`cols`: the observation entries D reads, `disc.obs_prefix`).
-pub fn disc_inputs(obs_n: &Tensor, cols: usize, act: &[f32], ad: usize) -> Tensor {
-    Tensor::cat(&[&obs_n.narrow(1, 0, cols as i64), &tensor_2d(act, ad)], 1)
+/// Discriminator inputs `[norm(s)[..disc_cols], a]` from normalised observations and
+/// actions, `a` left out when D reads states only (`disc_act = 0`, `disc.actions`).
+pub fn disc_inputs(obs_n: &Tensor, act: &[f32], d: Dims) -> Tensor {
+    let s = obs_n.narrow(1, 0, d.disc_cols as i64);
+    if d.disc_act == 0 {
+        return s.contiguous();
+    }
+    Tensor::cat(&[&s, &tensor_2d(act, d.act)], 1)
 }
 
 fn modes(m: &[u32]) -> Tensor {
@@ -120,11 +157,11 @@ fn modes(m: &[u32]) -> Tensor {
 
 /// Expert data as D's input tensors.
 pub struct ExpertData {
-    /// `[n, cols+act]` normalised unlabeled inputs.
+    /// `[n, disc_inp]` normalised unlabeled inputs.
     pub unlabeled: Tensor,
     /// `[n]` true modes (only for the full-label baseline and the encoder accuracy).
     pub unlabeled_mode: Tensor,
-    /// `[m, cols+act]` labeled inputs.
+    /// `[m, disc_inp]` labeled inputs.
     pub labeled: Tensor,
     /// `[m]` labels.
     pub labels: Tensor,
@@ -133,7 +170,7 @@ pub struct ExpertData {
 impl ExpertData {
     /// D's view of `demos`.
     pub fn new(demos: &Demos, norm: &ObsNorm, d: Dims) -> Self {
-        let x = |obs: &[f32], act: &[f32]| disc_inputs(&norm.apply(obs), d.disc_cols, act, d.act);
+        let x = |obs: &[f32], act: &[f32]| disc_inputs(&norm.apply(obs), act, d);
         Self {
             unlabeled: x(&demos.unlabeled.obs, &demos.unlabeled.act),
             unlabeled_mode: modes(&demos.unlabeled.mode),
@@ -198,7 +235,7 @@ pub struct Rollout {
     pub all: Chunk,
     /// `[n, obs]` normalised observations.
     pub obs_n: Tensor,
-    /// `[n, cols+act]` D's inputs.
+    /// `[n, disc_inp]` D's inputs.
     pub disc_x: Tensor,
     /// `[n, K]` soft codes.
     pub code: Tensor,
@@ -216,7 +253,7 @@ impl Rollout {
         }
         let obs_n = norm.apply(&all.obs);
         Self {
-            disc_x: disc_inputs(&obs_n, d.disc_cols, &all.act, d.act),
+            disc_x: disc_inputs(&obs_n, &all.act, d),
             code: tensor_2d(&all.code, d.codes),
             eps: Tensor::from_slice(&all.eps),
             obs_n,
@@ -311,6 +348,45 @@ pub fn gather(
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    fn humanoid(set: &[&str]) -> CheckedConfig {
+        let mut b = ess_proto::config::ConfigBuilder::new();
+        b.set("env.name=\"humanoid\"").expect("env");
+        for kv in set {
+            b.set(kv).expect("set");
+        }
+        b.build().expect("config")
+    }
+
+    #[test]
+    fn a_state_only_d_reads_the_observation_columns_alone() {
+        let norm = ObsNorm {
+            mean: vec![0.0; 3],
+            std: vec![1.0; 3],
+        };
+        let (obs, act) = ([1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0], [0.5f32, -0.5]);
+        let obs_n = norm.apply(&obs);
+        let with = Dims::new(&humanoid(&["disc.obs_prefix=2"]), "h", 3, 1).expect("dims");
+        let x = disc_inputs(&obs_n, &act, with);
+        assert_eq!(x.size(), [2, with.disc_inp() as i64]);
+        assert_eq!(
+            Vec::<f32>::try_from(x.view([-1])).expect("f32"),
+            [1.0, 2.0, 0.5, 4.0, 5.0, -0.5]
+        );
+        let cfg = humanoid(&["disc.obs_prefix=2", "disc.actions=false"]);
+        let without = Dims::new(&cfg, "h", 3, 1).expect("dims");
+        assert_eq!((without.disc_act, without.disc_inp()), (0, 2));
+        let x = disc_inputs(&obs_n, &act, without);
+        assert_eq!(
+            Vec::<f32>::try_from(x.view([-1])).expect("f32"),
+            [1.0, 2.0, 4.0, 5.0]
+        );
+        let err = Dims::new(&humanoid(&["disc.obs_prefix=4"]), "h", 3, 1).expect_err("too long");
+        assert_eq!(
+            err.to_string(),
+            "disc.obs_prefix = 4 exceeds env `h`'s observation length 3"
+        );
+    }
 
     #[test]
     fn code_reweighting_draws_each_code_at_its_target_share() {

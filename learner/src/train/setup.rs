@@ -8,7 +8,7 @@ use super::{LoopState, Progress, Trainer};
 use crate::actors::{ShmActors, ShmActorsConfig, actor_binary, new_run_id};
 use crate::eval::Reference;
 use crate::remote::{Assign, RemoteActors, RemoteError, RemoteSetup};
-use crate::train::nets::{Discriminator, obs_columns};
+use crate::train::nets::Discriminator;
 use crate::train::optim::Adam;
 use crate::train::ppo::PpoLearner;
 use anyhow::{Context, Result, bail};
@@ -65,12 +65,7 @@ impl Nets {
             },
             m.gumbel_tau,
         )?;
-        let disc = Discriminator::new(
-            dvs.root() / "disc",
-            d.disc_cols + d.act,
-            &cfg.disc.hidden,
-            d.codes,
-        );
+        let disc = Discriminator::new(dvs.root() / "disc", d.disc_inp(), &cfg.disc.hidden, d.codes);
         let dopt = Adam::new(&dvs, cfg.disc.lr)?;
         Ok(Self {
             vs,
@@ -421,13 +416,7 @@ impl<'c> Trainer<'c> {
         let started = Instant::now();
         let mut eval_env = rollout_env(cfg)?;
         let spec = eval_env.spec().clone();
-        let disc_cols = obs_columns(cfg.disc.obs_prefix, spec.obs_dim).ok_or_else(|| {
-            TrainInputError::DiscObsPrefix {
-                prefix: cfg.disc.obs_prefix,
-                env: spec.name.clone(),
-                obs_dim: spec.obs_dim,
-            }
-        })?;
+        let dims = Dims::new(cfg, &spec.name, spec.obs_dim, spec.act_dim)?;
         if is_task(cfg) && cfg.demos.path.is_empty() {
             return Err(TrainInputError::TaskNeedsDemos {
                 env: cfg.env.name.clone(),
@@ -455,12 +444,6 @@ impl<'c> Trainer<'c> {
             ))
             .into());
         }
-        let dims = Dims {
-            obs: spec.obs_dim,
-            act: spec.act_dim,
-            codes: cfg.env.n_modes,
-            disc_cols,
-        };
         let (mean, std) = crate::eval::classifier::feature_stats(&demos.unlabeled.obs, dims.obs);
         let norm = ObsNorm { mean, std };
         let expert = ExpertData::new(&demos, &norm, dims);

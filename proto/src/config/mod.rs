@@ -498,10 +498,16 @@ pub struct DiscConfig {
     /// Batch size of each update, per data source (paper code: 1000).
     pub batch: usize,
     /// D, Q_c and Q_eps read only the first this many observation entries, plus the
-    /// action (0: the whole observation, as in the paper). E.g. 45 on Humanoid keeps
+    /// action unless `actions` is false (0: the whole observation, as in the paper). E.g. 45 on Humanoid keeps
     /// `qpos[2..]` and `qvel` and drops the com-inertia, com-velocity, actuator-force and
     /// contact-force blocks, by which D can tell policy from expert without the pose.
     pub obs_prefix: usize,
+    /// Whether D, Q_c and Q_eps read the action beside the state (true: the paper's
+    /// `D(s, a)`). False makes them functions of the state alone, as in imitation from
+    /// observation (Torabi et al. 2019): D then cannot tell policy from expert by the
+    /// action noise (a Gaussian policy against tanh-squashed experts of another std)
+    /// and rewards only where the policy goes.
+    pub actions: bool,
     /// One-sided label smoothing (Salimans et al. 2016): D's target on expert rows is
     /// `1 - label_smoothing` instead of 1 in Eq. 1's cross-entropy (0: off, the
     /// paper's setting). A D that may not be sure keeps finite logits on expert-like
@@ -528,6 +534,7 @@ impl Default for DiscConfig {
             steps: 50,
             batch: 1000,
             obs_prefix: 0,
+            actions: true,
             label_smoothing: 0.0,
             label_smoothing_policy: 0.0,
             input_noise: 0.0,
