@@ -142,10 +142,11 @@ fn softmax(h: &Heads<'_, &[f32]>, c: Cols, s: &mut Scratch) {
     }
 }
 
-/// Eq. 1, [`crate::objective::disc_bce::disc_bce`]: `mean_E BCE(logit, 1 - smoothing)
-/// + mean_G BCE(logit, policy_target)` (`softplus(logit)` at target 0), where
-/// `BCE(x, t) = t softplus(-x) + (1 - t) softplus(x)`; gradient `(sigmoid(x) - t) / rows`. The value (a logarithm per row) only when
-/// `value` (the step that is logged); else 0.
+/// Eq. 1, [`crate::objective::disc_bce::disc_bce`]: the sum `mean_E BCE(logit, 1 -
+/// smoothing) + mean_G BCE(logit, policy_target)` (`softplus(logit)` at target 0),
+/// where `BCE(x, t) = t softplus(-x) + (1 - t) softplus(x)`; gradient
+/// `(sigmoid(x) - t) / rows`. The value (a logarithm per row) only when `value` (the
+/// step that is logged); else 0.
 pub fn disc_bce(
     h: &Heads<'_, &[f32]>,
     d: &mut Heads<'_, &mut [f32]>,
