@@ -159,10 +159,12 @@ async fn a_browser_logs_in_watches_a_job_train_and_cancels_it() {
     c.goto(&url).await.unwrap();
     assert!(c.current_url().await.unwrap().as_str().ends_with("/login"));
     log_in(&c, &url, "wrong-token").await;
-    let err = c
-        .find(Locator::Id("error"))
-        .await
-        .expect("the login says the token is wrong");
+    // The click returns before the POST's answer is loaded: wait for it (CI once
+    // looked for the message on the old page and failed).
+    let err = wait_for(10, "the login to say the token is wrong", || async {
+        c.find(Locator::Id("error")).await.ok()
+    })
+    .await;
     assert_eq!(err.text().await.unwrap(), "Wrong token.");
     c.goto(&format!("{url}api/jobs")).await.unwrap();
     let body = c
