@@ -1,6 +1,9 @@
-//! Behaviour-cloning warm start (`ppo.bc_steps`): before the first iteration, the
-//! policy's mean network is fitted to the labeled demonstrations, each with its own
-//! code, so every code starts near its mode's behaviour instead of from scratch.
+//! Behaviour cloning of the labeled demonstrations: the warm start (`ppo.bc_steps`),
+//! before the first iteration, fits the policy's mean network to the labeled
+//! demonstrations, each with its own code, so every code starts near its mode's
+//! behaviour instead of from scratch; `ppo.bc_steps_per_iter` takes the same steps
+//! after every PPO update, an auxiliary cloning loss (as DAPG's) that keeps each code
+//! near its mode while the imitation rewards train it.
 //!
 //! Not part of the paper (the original InfoGAIL paper initialises its policy this
 //! way). It reads only the labeled few, the same data Eq. 4 gives Q_c, so the
@@ -8,7 +11,9 @@
 //! the pre-tanh demonstrated action, `atanh(a)` (the policy acts with `tanh(u)`); eps
 //! is drawn as in the rollouts, so the clone does not depend on it. The steps use the
 //! PPO optimiser, so PPO starts from the cloning's Adam moments (the value network gets
-//! no gradient and does not move).
+//! no gradient). Between PPO updates, that shared Adam moves the parameters the
+//! cloning does not reach (the value network, log std) along their moments for those
+//! steps, as a decaying continuation of PPO's last direction.
 
 use crate::train::data::{Dims, ObsNorm, sample_idx};
 use crate::train::ppo::PpoLearner;
@@ -60,7 +65,7 @@ fn cloning_data(
 
 /// `steps` minibatch steps (`batch` rows each) of behaviour cloning on `labeled`.
 /// `None` when there is nothing to clone (no steps, or no labeled demonstrations).
-pub fn warm_start(
+pub fn clone_steps(
     ppo: &mut PpoLearner,
     labeled: &DemoSplit,
     norm: &ObsNorm,
@@ -144,7 +149,7 @@ mod tests {
             disc_cols: obs_dim,
             disc_act: act_dim,
         };
-        let loss = warm_start(&mut ppo, &split, &norm, (d, true), (400, 64), &mut rng)
+        let loss = clone_steps(&mut ppo, &split, &norm, (d, true), (400, 64), &mut rng)
             .expect("labeled data");
         assert!(loss.last < 0.01 * loss.first, "{loss:?}");
         for (code, want) in [([1.0f32, 0.0], 0.5f64), ([0.0, 1.0], -0.5)] {
@@ -188,7 +193,7 @@ mod tests {
             disc_act: 1,
         };
         assert_eq!(
-            warm_start(&mut ppo, &empty, &norm, (d, true), (10, 8), &mut rng),
+            clone_steps(&mut ppo, &empty, &norm, (d, true), (10, 8), &mut rng),
             None
         );
     }

@@ -358,7 +358,7 @@ fn clone_labeled(
 ) {
     let shape = (cfg.ppo.bc_steps, cfg.ppo.minibatch);
     let (labeled, use_eps) = (&demos.labeled, cfg.method.use_eps);
-    match bc::warm_start(&mut nets.ppo, labeled, norm, (d, use_eps), shape, rng) {
+    match bc::clone_steps(&mut nets.ppo, labeled, norm, (d, use_eps), shape, rng) {
         Some(l) => progress.message(&format!(
             "behaviour cloning: {} steps on {} labeled transitions, squared error {:.4} -> {:.4}",
             shape.0,

@@ -292,6 +292,11 @@ impl Trainer<'_> {
         };
         let ppo = &mut self.nets.ppo;
         let st = ppo.update_on(&batch, &mut self.st.rng, self.fused.as_mut())?;
+        // DAPG-style auxiliary cloning of the labeled few ([`super::bc`]).
+        let (steps, mb) = (self.cfg.ppo.bc_steps_per_iter, self.cfg.ppo.minibatch);
+        let (labeled, use_eps) = (&self.demos.labeled, self.cfg.method.use_eps);
+        let at = (self.dims, use_eps);
+        super::bc::clone_steps(ppo, labeled, &self.norm, at, (steps, mb), &mut self.st.rng);
         log.policy_loss = st.policy_loss;
         log.value_loss = st.value_loss;
         log.entropy = st.entropy;

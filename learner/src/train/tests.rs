@@ -138,6 +138,11 @@ fn a_fresh_run_clones_the_labeled_demonstrations_only_when_asked() {
 
 /// A small Traj2D run's configuration on `backend`.
 fn small_run(backend: Backend) -> CheckedConfig {
+    small_run_with(backend, &[])
+}
+
+/// [`small_run`] with the settings `extra` on top.
+fn small_run_with(backend: Backend, extra: &[&str]) -> CheckedConfig {
     let mut b = ConfigBuilder::new();
     for kv in [
         "run.iterations=12",
@@ -153,7 +158,10 @@ fn small_run(backend: Backend) -> CheckedConfig {
         "run.reference_episodes=2",
         "demos.majority_episodes=4",
         "run.torch_threads=2",
-    ] {
+    ]
+    .iter()
+    .chain(extra)
+    {
         b.set(kv).expect(kv);
     }
     b.build().expect("config").with_backend(backend)
@@ -234,5 +242,33 @@ fn a_checkpoint_of_either_backend_resumes_on_the_other() {
         // And the switched run goes on from its own checkpoint.
         let more = iterations(&small_run(other), &b, 12..=12);
         assert_eq!(more[0].iteration, 12);
+    }
+}
+
+/// `ppo.bc_steps_per_iter` keeps the policy near the labeled demonstrations while the
+/// rewards train it: after the same iterations (no warm start), the cloning error of
+/// the run that takes those steps is well under that of the run that does not, on
+/// both backends (the steps run on tch's graph, between fused PPO updates too).
+#[test]
+fn cloning_after_every_update_keeps_the_policy_near_the_labeled_demos() {
+    for backend in [Backend::Fused, Backend::Tch] {
+        let error = |per_iter: usize| {
+            let kv = format!("ppo.bc_steps_per_iter={per_iter}");
+            let cfg = small_run_with(backend, &[&kv]);
+            let dir = tempfile::tempdir().expect("tmp");
+            let mut t = Trainer::new(&cfg, dir.path(), crate::logs::open, &mut Quiet, false)
+                .expect("trainer");
+            for it in 1..=4 {
+                t.iteration(it).expect("iteration");
+            }
+            let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
+            let at = (t.dims, cfg.method.use_eps);
+            let (labeled, ppo) = (&t.demos.labeled, &mut t.nets.ppo);
+            bc::clone_steps(ppo, labeled, &t.norm, at, (1, 4096), &mut rng)
+                .expect("labeled demos")
+                .first
+        };
+        let (without, with) = (error(0), error(100));
+        assert!(with < 0.5 * without, "{backend:?}: {with} vs {without}");
     }
 }

@@ -401,6 +401,11 @@ pub struct PpoConfig {
     /// the policy's mean to the labeled demonstrations, each under its own code,
     /// before the first iteration of a fresh run (0: off, the paper's setting).
     pub bc_steps: usize,
+    /// Behaviour-cloning steps after every PPO update (the warm start's loss and
+    /// rows), which keep each code near its labeled mode while the imitation rewards
+    /// train it (0: off, the paper's setting). Not in the paper: an auxiliary
+    /// behaviour-cloning loss as in DAPG (Rajeswaran et al. 2018), on the labeled few.
+    pub bc_steps_per_iter: usize,
 }
 
 impl Default for PpoConfig {
@@ -420,6 +425,7 @@ impl Default for PpoConfig {
             log_std_init: -0.5,
             normalize_rewards: false,
             bc_steps: 0,
+            bc_steps_per_iter: 0,
         }
     }
 }
