@@ -160,8 +160,8 @@ fn rewards(
             let lse = m + (0..k).map(|i| math::exp(q(i) - m)).sum::<f32>().ln();
             let mut lq: f32 = (0..k).map(|i| code[j * k + i] * (q(i) - lse)).sum();
             lq += rw.qc_offset as f32;
-            if rw.qc_floor {
-                lq = lq.max(0.0);
+            if let Some(v) = rw.qc_floor {
+                lq = lq.max(v as f32);
             }
             r += lq * rw.qc as f32;
         }

@@ -26,8 +26,9 @@ pub struct RewardWeights {
     pub qc: f64,
     /// Constant added to `log Q_c` before weighting (`H(c)`, or 0).
     pub qc_offset: f64,
-    /// Clip `log Q_c + qc_offset` at 0 from below (`method.qc_reward_floor`).
-    pub qc_floor: bool,
+    /// Clip `log Q_c + qc_offset` from below at this value (`method.qc_reward_floor`,
+    /// at `method.qc_reward_floor_at`); `None`: no clip.
+    pub qc_floor: Option<f64>,
     /// Latent shift term.
     pub qeps: f64,
 }
@@ -46,7 +47,10 @@ pub fn policy_reward(
         let lq =
             (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float);
         let lq = lq + w.qc_offset;
-        let lq = if w.qc_floor { lq.clamp_min(0.0) } else { lq };
+        let lq = match w.qc_floor {
+            Some(v) => lq.clamp_min(v),
+            None => lq,
+        };
         r += lq * w.qc;
     }
     if w.qeps != 0.0 {
@@ -74,7 +78,7 @@ mod tests {
             disc_temperature: 1.0,
             qc: 0.5,
             qc_offset: 0.0,
-            qc_floor: false,
+            qc_floor: None,
             qeps: 2.0,
         };
         let d = Tensor::from_slice(&[0.0f32]);
@@ -96,7 +100,7 @@ mod tests {
             disc_temperature: 10.0,
             qc: 0.0,
             qc_offset: 0.0,
-            qc_floor: false,
+            qc_floor: None,
             qeps: 0.0,
         };
         // A sure D (logits -20 and -10): exp-small at T = 1, ln(1 + e^-2) and
@@ -122,7 +126,7 @@ mod tests {
             disc_temperature: 1.0,
             qc: 3.0,
             qc_offset: 4f64.ln(),
-            qc_floor: false,
+            qc_floor: None,
             qeps: 0.0,
         };
         let d = Tensor::from_slice(&[5.0f32]);
@@ -134,7 +138,7 @@ mod tests {
     }
 
     #[test]
-    fn the_floor_leaves_recognised_codes_and_zeroes_unrecognised_ones() {
+    fn the_floor_leaves_recognised_codes_and_clips_unrecognised_ones_at_its_value() {
         // H(c) = ln 2; Q_c says 0.9 for the first row's code, 0.1 for the second's.
         let mut w = RewardWeights {
             disc_logit: true,
@@ -142,7 +146,7 @@ mod tests {
             disc_temperature: 1.0,
             qc: 1.0,
             qc_offset: 2f64.ln(),
-            qc_floor: true,
+            qc_floor: Some(0.0),
             qeps: 0.0,
         };
         let d = Tensor::from_slice(&[0.0f32, 0.0]);
@@ -153,7 +157,11 @@ mod tests {
         let recognised = 0.9f32.ln() + 2f32.ln();
         assert!((r(w)[0] - recognised).abs() < 1e-5, "{:?}", r(w));
         assert_eq!(r(w)[1], 0.0);
-        w.qc_floor = false;
+        // ln 0.1 + ln 2 = -1.61: a floor at -0.5 charges the step 0.5, none the whole.
+        w.qc_floor = Some(-0.5);
+        assert!((r(w)[0] - recognised).abs() < 1e-5, "{:?}", r(w));
+        assert_eq!(r(w)[1], -0.5);
+        w.qc_floor = None;
         assert!(
             (r(w)[1] - (0.1f32.ln() + 2f32.ln())).abs() < 1e-5,
             "{:?}",

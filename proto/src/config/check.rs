@@ -136,6 +136,13 @@ impl MethodConfig {
              the floor would zero the term)",
         )?;
         range(
+            m.qc_reward_floor_at.is_finite() && m.qc_reward_floor_at <= 0.0,
+            "method.qc_reward_floor_at",
+            m.qc_reward_floor_at,
+            "must be a finite number <= 0 (the floor clips log Q_c + H(c), which is \
+             above 0 only where Q_c credits the step's code)",
+        )?;
+        range(
             m.rollout_codes == RolloutCodes::Prior || m.prior == LatentPrior::Gumbel,
             "method.rollout_codes",
             "\"uniform\"",

@@ -290,6 +290,11 @@ pub struct MethodConfig {
     /// a code Q_c does not yet recognise otherwise learns that falling at once is
     /// best (Walker2d: the forward code fell within ~6 steps, bench/experiments.md).
     pub qc_reward_floor: bool,
+    /// The value `method.qc_reward_floor` clips at (<= 0; 0: a misattributed step
+    /// earns nothing). Below 0, a step Q_c credits to another code costs at most
+    /// this much: on Humanoid the forward code drifted to the easier backward gait,
+    /// which the discriminator pays and a 0 floor does not charge (bench/humanoid.md).
+    pub qc_reward_floor_at: f64,
     /// Policy reward weight of -|Q_eps(s, a) - eps| (lambda_1 in Eq. 3).
     pub reward_qeps: f64,
     /// Policy reward weight of the discriminator term.
@@ -352,6 +357,7 @@ impl Default for MethodConfig {
             reward_qc: 4.0,
             qc_reward_entropy: false,
             qc_reward_floor: false,
+            qc_reward_floor_at: 0.0,
             reward_qeps: 0.5,
             reward_disc: 1.0,
             disc_reward: DiscReward::Logit,
@@ -798,6 +804,25 @@ mod tests {
             .set("method.qc_reward_floor=true")
             .unwrap()
             .set("method.qc_reward_entropy=true")
+            .unwrap()
+            .build();
+        assert!(ok.is_ok(), "{ok:?}");
+    }
+
+    #[test]
+    fn the_q_c_reward_floor_value_must_not_be_above_zero() {
+        let e = ConfigBuilder::new()
+            .set("method.qc_reward_floor_at=0.5")
+            .unwrap()
+            .build()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("method.qc_reward_floor_at") && e.contains("0.5"),
+            "{e}"
+        );
+        let ok = ConfigBuilder::new()
+            .set("method.qc_reward_floor_at=-0.5")
             .unwrap()
             .build();
         assert!(ok.is_ok(), "{ok:?}");
