@@ -524,9 +524,18 @@ fn run_all(env: &str) {
 
 /// Every preset on `env` with `set` on top of one PPO epoch.
 fn run_all_with(env: &str, set: &[&str]) {
+    run_presets_with(env, set, |_| true);
+}
+
+/// The presets `keep` accepts (given their config without `set`) on `env`, with `set`
+/// on top of one PPO epoch.
+fn run_presets_with(env: &str, set: &[&str], keep: impl Fn(&CheckedConfig) -> bool) {
     let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let mut failures = Vec::new();
     for (preset, _) in PRESETS {
+        if !keep(&config(env, preset, &[])) {
+            continue;
+        }
         let cfg = config(env, preset, &[&["ppo.epochs=1"], set].concat());
         let d = dims(&cfg);
         let (mut a, mut b) = twins(&cfg, d);
@@ -611,6 +620,20 @@ fn disc_reward_temperature_matches_tch() {
             "method.disc_reward=\"neg-log-one-minus-d\"",
         ],
     );
+}
+
+#[test]
+fn q_c_floor_value_and_gate_match_tch() {
+    // The floor below 0 and D's reward gated by Q_c, on every preset with codes.
+    let set = [
+        "method.qc_reward_entropy=true",
+        "method.qc_reward_floor=true",
+        "method.qc_reward_floor_at=-0.5",
+        "method.disc_reward_qc_gate=true",
+    ];
+    run_presets_with("humanoid", &set, |c| {
+        c.method.prior != ess_proto::config::LatentPrior::None
+    });
 }
 
 #[test]

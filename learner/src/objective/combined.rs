@@ -128,6 +128,7 @@ impl RewardWeights {
             } else {
                 0.0
             },
+            disc_qc_gate: m.disc_reward_qc_gate,
             qc_floor: m.qc_reward_floor.then_some(m.qc_reward_floor_at),
             qeps: if m.use_eps { m.reward_qeps * info } else { 0.0 },
         }

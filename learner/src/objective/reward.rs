@@ -26,6 +26,8 @@ pub struct RewardWeights {
     pub qc: f64,
     /// Constant added to `log Q_c` before weighting (`H(c)`, or 0).
     pub qc_offset: f64,
+    /// Multiply the discriminator term by `Q_c(c | s, a)` (`method.disc_reward_qc_gate`).
+    pub disc_qc_gate: bool,
     /// Clip `log Q_c + qc_offset` from below at this value (`method.qc_reward_floor`,
     /// at `method.qc_reward_floor_at`); `None`: no clip.
     pub qc_floor: Option<f64>,
@@ -42,11 +44,14 @@ pub fn policy_reward(
     qeps: &Tensor,
     eps: &Tensor,
 ) -> Tensor {
+    let log_qc =
+        || (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float);
     let mut r = disc_term(w, d_logit) * w.disc;
+    if w.disc_qc_gate {
+        r *= log_qc().exp();
+    }
     if w.qc != 0.0 {
-        let lq =
-            (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float);
-        let lq = lq + w.qc_offset;
+        let lq = log_qc() + w.qc_offset;
         let lq = match w.qc_floor {
             Some(v) => lq.clamp_min(v),
             None => lq,
@@ -78,6 +83,7 @@ mod tests {
             disc_temperature: 1.0,
             qc: 0.5,
             qc_offset: 0.0,
+            disc_qc_gate: false,
             qc_floor: None,
             qeps: 2.0,
         };
@@ -100,6 +106,7 @@ mod tests {
             disc_temperature: 10.0,
             qc: 0.0,
             qc_offset: 0.0,
+            disc_qc_gate: false,
             qc_floor: None,
             qeps: 0.0,
         };
@@ -126,6 +133,7 @@ mod tests {
             disc_temperature: 1.0,
             qc: 3.0,
             qc_offset: 4f64.ln(),
+            disc_qc_gate: false,
             qc_floor: None,
             qeps: 0.0,
         };
@@ -146,6 +154,7 @@ mod tests {
             disc_temperature: 1.0,
             qc: 1.0,
             qc_offset: 2f64.ln(),
+            disc_qc_gate: false,
             qc_floor: Some(0.0),
             qeps: 0.0,
         };
@@ -167,5 +176,33 @@ mod tests {
             "{:?}",
             r(w)
         );
+    }
+
+    #[test]
+    fn the_gate_pays_d_by_how_much_q_c_credits_the_code() {
+        // D's logit 2 on both rows; Q_c says 0.9 for the first row's code, 0.1 for
+        // the second's; no other term.
+        let mut w = RewardWeights {
+            disc_logit: true,
+            disc: 1.0,
+            disc_temperature: 1.0,
+            qc: 0.0,
+            qc_offset: 0.0,
+            disc_qc_gate: true,
+            qc_floor: None,
+            qeps: 0.0,
+        };
+        let d = Tensor::from_slice(&[2.0f32, 2.0]);
+        let qc = t(&[0.9f32.ln(), 0.1f32.ln(), 0.9f32.ln(), 0.1f32.ln()], 2);
+        let code = t(&[1.0, 0.0, 0.0, 1.0], 2);
+        let e = Tensor::from_slice(&[0.0f32, 0.0]);
+        let r = |w| Vec::<f32>::try_from(policy_reward(w, &d, &qc, &code, &e, &e)).unwrap();
+        let got = r(w);
+        assert!(
+            (got[0] - 1.8).abs() < 1e-5 && (got[1] - 0.2).abs() < 1e-5,
+            "{got:?}"
+        );
+        w.disc_qc_gate = false;
+        assert_eq!(r(w), vec![2.0, 2.0]);
     }
 }

@@ -129,6 +129,12 @@ impl MethodConfig {
             "a method without latent skill cannot reward or train Q_c on generated codes",
         )?;
         range(
+            m.prior != LatentPrior::None || !m.disc_reward_qc_gate,
+            "method.disc_reward_qc_gate",
+            "true",
+            "a method without latent skill has no code for Q_c to credit",
+        )?;
+        range(
             !m.qc_reward_floor || m.qc_reward_entropy,
             "method.qc_reward_floor",
             "true",

@@ -295,6 +295,11 @@ pub struct MethodConfig {
     /// this much: on Humanoid the forward code drifted to the easier backward gait,
     /// which the discriminator pays and a 0 floor does not charge (bench/humanoid.md).
     pub qc_reward_floor_at: f64,
+    /// Multiply each step's discriminator reward by `Q_c(c | s, a)`, the probability
+    /// Q_c gives the step's own code: D, which judges the mixture of all modes, then
+    /// pays a code only for looking like its own mode. On Humanoid D paid the forward
+    /// code for the easier backward gait (bench/humanoid.md). Off: Eq. 9's reward.
+    pub disc_reward_qc_gate: bool,
     /// Policy reward weight of -|Q_eps(s, a) - eps| (lambda_1 in Eq. 3).
     pub reward_qeps: f64,
     /// Policy reward weight of the discriminator term.
@@ -358,6 +363,7 @@ impl Default for MethodConfig {
             qc_reward_entropy: false,
             qc_reward_floor: false,
             qc_reward_floor_at: 0.0,
+            disc_reward_qc_gate: false,
             reward_qeps: 0.5,
             reward_disc: 1.0,
             disc_reward: DiscReward::Logit,
@@ -826,6 +832,23 @@ mod tests {
             .unwrap()
             .build();
         assert!(ok.is_ok(), "{ok:?}");
+    }
+
+    #[test]
+    fn the_d_reward_gate_needs_codes() {
+        let with = |gate: bool| {
+            ConfigBuilder::new()
+                .set("method.prior=\"none\"")
+                .unwrap()
+                .set("method.reward_qc=0")
+                .unwrap()
+                .set(&format!("method.disc_reward_qc_gate={gate}"))
+                .unwrap()
+                .build()
+        };
+        assert!(with(false).is_ok(), "{:?}", with(false));
+        let e = with(true).unwrap_err().to_string();
+        assert!(e.contains("method.disc_reward_qc_gate"), "{e}");
     }
 
     #[test]
