@@ -154,17 +154,20 @@ fn rewards(
         let x = heads[j] / rw.disc_temperature as f32;
         let dterm = if rw.disc_logit { x } else { math::softplus(x) };
         let mut r = dterm * rw.disc as f32;
-        let log_qc = || {
+        // `sum_k c_k log Q_c(k | s, a)`, computed once for the gate and the information term.
+        let log_qc = if rw.disc_qc_gate || rw.qc != 0.0 {
             let q = |i: usize| heads[(1 + i) * w + j];
             let m = (0..k).fold(f32::NEG_INFINITY, |a, i| a.max(q(i)));
             let lse = m + (0..k).map(|i| math::exp(q(i) - m)).sum::<f32>().ln();
             (0..k).map(|i| code[j * k + i] * (q(i) - lse)).sum::<f32>()
+        } else {
+            0.0
         };
         if rw.disc_qc_gate {
-            r *= math::exp(log_qc());
+            r *= math::exp(log_qc);
         }
         if rw.qc != 0.0 {
-            let mut lq = log_qc();
+            let mut lq = log_qc;
             lq += rw.qc_offset as f32;
             if let Some(v) = rw.qc_floor {
                 lq = lq.max(v as f32);

@@ -44,19 +44,23 @@ pub fn policy_reward(
     qeps: &Tensor,
     eps: &Tensor,
 ) -> Tensor {
-    let log_qc =
-        || (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float);
+    // `sum_k c_k log Q_c(k | s, a)`, computed once for the gate and the information term.
+    let log_qc = (w.disc_qc_gate || w.qc != 0.0).then(|| {
+        (code * qc_logits.log_softmax(-1, Kind::Float)).sum_dim_intlist(-1, false, Kind::Float)
+    });
     let mut r = disc_term(w, d_logit) * w.disc;
-    if w.disc_qc_gate {
-        r *= log_qc().exp();
-    }
-    if w.qc != 0.0 {
-        let lq = log_qc() + w.qc_offset;
-        let lq = match w.qc_floor {
-            Some(v) => lq.clamp_min(v),
-            None => lq,
-        };
-        r += lq * w.qc;
+    if let Some(lq) = &log_qc {
+        if w.disc_qc_gate {
+            r *= lq.exp();
+        }
+        if w.qc != 0.0 {
+            let lq = lq + w.qc_offset;
+            let lq = match w.qc_floor {
+                Some(v) => lq.clamp_min(v),
+                None => lq,
+            };
+            r += lq * w.qc;
+        }
     }
     if w.qeps != 0.0 {
         r -= (qeps - eps).abs() * w.qeps;
