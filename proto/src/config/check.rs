@@ -149,6 +149,12 @@ impl MethodConfig {
              above 0 only where Q_c credits the step's code)",
         )?;
         range(
+            m.qc_reward_floor || m.qc_reward_floor_at == 0.0,
+            "method.qc_reward_floor_at",
+            m.qc_reward_floor_at,
+            "has no effect unless method.qc_reward_floor = true",
+        )?;
+        range(
             m.rollout_codes == RolloutCodes::Prior || m.prior == LatentPrior::Gumbel,
             "method.rollout_codes",
             "\"uniform\"",

@@ -816,7 +816,7 @@ mod tests {
     }
 
     #[test]
-    fn the_q_c_reward_floor_value_must_not_be_above_zero() {
+    fn the_q_c_reward_floor_value_is_at_most_zero_and_needs_the_floor() {
         let e = ConfigBuilder::new()
             .set("method.qc_reward_floor_at=0.5")
             .unwrap()
@@ -827,11 +827,22 @@ mod tests {
             e.contains("method.qc_reward_floor_at") && e.contains("0.5"),
             "{e}"
         );
-        let ok = ConfigBuilder::new()
-            .set("method.qc_reward_floor_at=-0.5")
-            .unwrap()
-            .build();
-        assert!(ok.is_ok(), "{ok:?}");
+        let with_floor = |on: bool| {
+            ConfigBuilder::new()
+                .set("method.qc_reward_floor_at=-0.5")
+                .unwrap()
+                .set(&format!("method.qc_reward_floor={on}"))
+                .unwrap()
+                .set("method.qc_reward_entropy=true")
+                .unwrap()
+                .build()
+        };
+        let e = with_floor(false).unwrap_err().to_string();
+        assert!(
+            e.contains("method.qc_reward_floor_at") && e.contains("method.qc_reward_floor ="),
+            "{e}"
+        );
+        assert!(with_floor(true).is_ok());
     }
 
     #[test]
