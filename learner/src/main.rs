@@ -141,17 +141,26 @@ fn end_quietly_on_closed_stdout() {
     }
 }
 
-/// `ess report`: the Table 1 view, then each moving run's codes beside their experts.
+/// `ess report`: the Table 1 view, then each moving run's codes beside their experts
+/// and each run's normalised reward per code at every evaluation.
 fn report(runs: &[PathBuf]) -> Result<()> {
+    use ess_learner::eval::table;
     let rows = runs
         .iter()
-        .map(|d| ess_learner::eval::table::read_run(d).map_err(input_err))
+        .map(|d| table::read_run(d).map_err(input_err))
         .collect::<Result<Vec<_>>>()?;
-    print!("{}", ess_learner::eval::table::markdown(&rows));
-    for row in &rows {
+    let curves = runs
+        .iter()
+        .map(|d| table::reward_curve_per_code(d).map_err(input_err))
+        .collect::<Result<Vec<_>>>()?;
+    print!("{}", table::markdown(&rows));
+    for (row, curve) in rows.iter().zip(curves) {
         let section = ess_learner::runlog::behaviour::section;
         if let Some(md) = section(&row.dir, &row.reward_per_code, &row.assignment)? {
             print!("{md}");
+        }
+        if !curve.is_empty() {
+            print!("{}", table::curve_markdown(&row.dir, &curve));
         }
     }
     Ok(())

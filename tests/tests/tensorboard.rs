@@ -100,9 +100,14 @@ fn tensorboard_reads_every_metrics_csv_number_at_its_env_steps() {
             if name == "env_steps" || cell.is_empty() {
                 continue;
             }
-            if name == "prior" {
+            let per_k = match name.as_str() {
+                "prior" => Some("prior/p_c"),
+                "normalized_reward_per_code" => Some("eval/normalized_reward_code"),
+                _ => None,
+            };
+            if let Some(prefix) = per_k {
                 for (k, p) in cell.split(';').enumerate() {
-                    let tag = format!("prior/p_c{k}");
+                    let tag = format!("{prefix}{k}");
                     let tb = at(scalars, &tag, step).unwrap_or_else(|| panic!("{tag} at {step}"));
                     assert_close(tb, p, &tag);
                     checked += 1;

@@ -179,6 +179,70 @@ pub fn markdown(rows: &[RunRow]) -> String {
     s
 }
 
+/// The normalised reward of each code at every evaluation of the run in `dir` (periodic
+/// and final), from `metrics.csv`'s `normalized_reward_per_code` column, as
+/// `(env steps, reward per code)`. Empty when the file or the column is absent (runs
+/// that predate it); a cell that is not numbers joined by `;` names the file and line.
+pub fn reward_curve_per_code(dir: &Path) -> Result<Vec<(u64, Vec<f64>)>, TableError> {
+    let path = dir.join("metrics.csv");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(Vec::new());
+    };
+    let mut lines = text.lines();
+    let head: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let col = |name: &str| head.iter().position(|h| *h == name);
+    let (Some(xi), Some(yi)) = (col("env_steps"), col("normalized_reward_per_code")) else {
+        return Ok(Vec::new());
+    };
+    let mut curve = Vec::new();
+    for (i, line) in lines.enumerate() {
+        let cells: Vec<&str> = line.split(',').collect();
+        let cell = cells.get(yi).copied().unwrap_or_default();
+        if cell.is_empty() {
+            continue;
+        }
+        let bad = |what: &str| TableError::Field {
+            path: path.clone(),
+            message: format!("line {}: {what}", i + 2),
+        };
+        let steps = cells.get(xi).and_then(|c| c.parse().ok());
+        let steps = steps.ok_or_else(|| bad("`env_steps` is not a whole number"))?;
+        let rewards = cell
+            .split(';')
+            .map(str::parse)
+            .collect::<Result<Vec<f64>, _>>();
+        let rewards = rewards.map_err(|_| {
+            bad(&format!(
+                "`normalized_reward_per_code` {cell:?} is not numbers joined by `;`"
+            ))
+        })?;
+        curve.push((steps, rewards));
+    }
+    Ok(curve)
+}
+
+/// The curve of [`reward_curve_per_code`] as Markdown: a row per evaluation, a column
+/// per code.
+pub fn curve_markdown(dir: &Path, curve: &[(u64, Vec<f64>)]) -> String {
+    let k = curve.iter().map(|(_, r)| r.len()).max().unwrap_or(0);
+    let mut s = format!(
+        "\n### {}: normalised reward per code against env steps (every evaluation)\n\n| env steps |",
+        dir.display()
+    );
+    for c in 0..k {
+        let _ = write!(s, " code {c} |");
+    }
+    let _ = write!(s, "\n|---|{}\n", "---|".repeat(k));
+    for (steps, rewards) in curve {
+        let _ = write!(s, "| {steps} |");
+        for r in rewards {
+            let _ = write!(s, " {r:.3} |");
+        }
+        let _ = writeln!(s);
+    }
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -217,6 +281,31 @@ mod tests {
         assert!(
             md.contains("| reacher | gail | 1 | 0.200 ± 0.000 |"),
             "{md}"
+        );
+    }
+
+    #[test]
+    fn the_curve_per_code_reads_the_evaluated_rows_and_names_a_bad_cell() {
+        let d = tempfile::tempdir().unwrap();
+        assert!(
+            reward_curve_per_code(d.path()).unwrap().is_empty(),
+            "no file"
+        );
+        let csv = |rows: &str| {
+            let head = "iteration,env_steps,nmi,normalized_reward_per_code";
+            std::fs::write(d.path().join("metrics.csv"), format!("{head}\n{rows}")).unwrap();
+        };
+        csv("1,5000,,\n2,10000,0.9,0.100000;0.250000\n3,15000,0.8,0.5;1.0\n");
+        let curve = reward_curve_per_code(d.path()).unwrap();
+        assert_eq!(curve, [(10000, vec![0.1, 0.25]), (15000, vec![0.5, 1.0])]);
+        let md = curve_markdown(d.path(), &curve);
+        assert!(md.contains("| env steps | code 0 | code 1 |"), "{md}");
+        assert!(md.contains("| 15000 | 0.500 | 1.000 |"), "{md}");
+        csv("1,5000,0.9,0.1;high\n");
+        let e = reward_curve_per_code(d.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("metrics.csv: line 2") && e.contains("\"0.1;high\""),
+            "{e}"
         );
     }
 

@@ -229,6 +229,7 @@ impl Trainer<'_> {
                 log.nmi = Some(r.nmi);
                 log.ent = Some(r.ent);
                 log.normalized_reward = Some(r.normalized_reward);
+                log.normalized_reward_per_code = r.normalized_reward_per_code;
             }
             self.record(log, progress)?;
             if run.checkpoint_every > 0 && it.is_multiple_of(run.checkpoint_every) {
@@ -391,6 +392,7 @@ impl Trainer<'_> {
         last.nmi = Some(result.nmi);
         last.ent = Some(result.ent);
         last.normalized_reward = Some(result.normalized_reward);
+        last.normalized_reward_per_code = result.normalized_reward_per_code.clone();
         records::write_csv_row(&mut self.csv, &last)?;
         self.csv.flush()?;
         self.sink.row(&last);

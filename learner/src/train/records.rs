@@ -122,6 +122,10 @@ pub struct IterationLog {
     pub ent: Option<f64>,
     /// Normalised task reward if evaluated.
     pub normalized_reward: Option<f64>,
+    /// Normalised task reward of each code if evaluated (empty if not; `r0;r1;...` in
+    /// the CSV): the curve per code that `ess report` prints.
+    #[serde(default)]
+    pub normalized_reward_per_code: Vec<f64>,
 }
 
 impl IterationLog {
@@ -287,7 +291,7 @@ pub fn prior_string(p: &[f32]) -> String {
 }
 
 /// The header of `metrics.csv`.
-pub const CSV_HEADER: &str = "iteration,env_steps,wall_s,rollout_s,disc_s,ppo_s,disc_bce,d_acc_expert,d_acc_policy,qc_labeled,qc_generated,qeps,rim_entropy,rim_kl,contrastive,reward_mean,policy_loss,value_loss,entropy,approx_kl,prior,nmi,ent,normalized_reward";
+pub const CSV_HEADER: &str = "iteration,env_steps,wall_s,rollout_s,disc_s,ppo_s,disc_bce,d_acc_expert,d_acc_policy,qc_labeled,qc_generated,qeps,rim_entropy,rim_kl,contrastive,reward_mean,policy_loss,value_loss,entropy,approx_kl,prior,nmi,ent,normalized_reward,normalized_reward_per_code";
 
 fn opt(v: Option<f64>) -> String {
     v.map(|x| format!("{x:.6}")).unwrap_or_default()
@@ -297,7 +301,7 @@ fn opt(v: Option<f64>) -> String {
 pub fn write_csv_row(w: &mut impl Write, l: &IterationLog) -> Result<()> {
     writeln!(
         w,
-        "{},{},{:.3},{:.4},{:.4},{:.4},{:.6},{:.4},{:.4},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{}",
+        "{},{},{:.3},{:.4},{:.4},{:.4},{:.6},{:.4},{:.4},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{}",
         l.iteration,
         l.env_steps,
         l.wall_s,
@@ -321,7 +325,12 @@ pub fn write_csv_row(w: &mut impl Write, l: &IterationLog) -> Result<()> {
         l.prior,
         opt(l.nmi),
         opt(l.ent),
-        opt(l.normalized_reward)
+        opt(l.normalized_reward),
+        l.normalized_reward_per_code
+            .iter()
+            .map(|r| format!("{r:.6}"))
+            .collect::<Vec<_>>()
+            .join(";")
     )?;
     Ok(())
 }
