@@ -320,6 +320,9 @@ impl Trainer<'_> {
         self.sink.iteration(&log)?;
         if let Some(done) = self.st.pending.replace(log) {
             records::write_csv_row(&mut self.csv, &done)?;
+            // Row by row, so that a reader of the file (the dashboard's curves, `tail`)
+            // sees each iteration when it ends, not every ~40 when the buffer fills.
+            self.csv.flush()?;
             self.sink.row(&done);
         }
         if let Some(note) = self.sink.note() {
