@@ -14,8 +14,18 @@
 //! no gradient). Between PPO updates, that shared Adam moves the parameters the
 //! cloning does not reach (the value network, log std) along their moments for those
 //! steps, as a decaying continuation of PPO's last direction.
+//!
+//! `ppo.bc_unlabeled_steps_per_iter` adds cloning steps on the *unlabeled*
+//! demonstrations, each row under the code Q_c reads for it (its most probable code,
+//! on rows Q_c gives at least [`ENCODED_MIN_PROB`]; the rest are skipped). Q_c is the
+//! method's own encoder, trained on the labeled few (Eq. 4) and the policy's codes, so
+//! no true label of an unlabeled row is read and the semi-supervised setting holds.
+//! Why: on Humanoid the labeled few are ~5 episodes, ~4 of them forward, and a clone
+//! of 4 running episodes falls within ~80 steps (bench/humanoid.md); the unlabeled
+//! set holds ~50 times more of every mode.
 
 use crate::train::data::{Dims, ObsNorm, sample_idx};
+use crate::train::nets::Discriminator;
 use crate::train::ppo::PpoLearner;
 use ess_envs::DemoSplit;
 use rand::Rng;
@@ -25,6 +35,10 @@ use tch::{Kind, Tensor, nn::Module};
 /// Largest |a| cloned: `atanh` of a saturated action is unbounded.
 const ACT_CLAMP: f64 = 0.995;
 
+/// Smallest Q_c probability of its most probable code at which an unlabeled row is
+/// cloned under that code.
+pub const ENCODED_MIN_PROB: f64 = 0.9;
+
 /// Squared-error losses of a warm start: at its first and its last step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BcLoss {
@@ -32,6 +46,33 @@ pub struct BcLoss {
     pub first: f64,
     /// Mean squared error of the last minibatch.
     pub last: f64,
+}
+
+/// `n` eps values drawn as in the rollouts (0 when the method has none).
+fn draw_eps(n: usize, use_eps: bool, rng: &mut ChaCha8Rng) -> Tensor {
+    let eps: Vec<f32> = (0..n)
+        .map(|_| {
+            if use_eps {
+                rng.random_range(-1.0..1.0)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Tensor::from_slice(&eps).view([-1, 1])
+}
+
+/// The policy inputs `[norm(obs), eps, one_hot(mode)]` for normalised `obs` and
+/// `modes` `[n]` (i64).
+fn policy_input(obs_n: Tensor, modes: &Tensor, codes: usize, eps: Tensor) -> Tensor {
+    let code = modes.one_hot(codes as i64).to_kind(Kind::Float);
+    Tensor::cat(&[obs_n, eps, code], 1)
+}
+
+/// The pre-tanh targets `atanh(a)` of `act` rows.
+fn pre_tanh(act: &[f32], act_dim: usize) -> Tensor {
+    let act = Tensor::from_slice(act).view([-1, act_dim as i64]);
+    act.clamp(-ACT_CLAMP, ACT_CLAMP).atanh()
 }
 
 /// The policy inputs `[norm(obs), eps, one_hot(mode)]` and pre-tanh targets of `split`.
@@ -44,23 +85,27 @@ fn cloning_data(
     rng: &mut ChaCha8Rng,
 ) -> (Tensor, Tensor) {
     let obs = norm.apply(&split.obs);
-    let n = obs.size()[0];
-    let eps: Vec<f32> = (0..n)
-        .map(|_| {
-            if use_eps {
-                rng.random_range(-1.0..1.0)
-            } else {
-                0.0
-            }
-        })
-        .collect();
+    let eps = draw_eps(obs.size()[0] as usize, use_eps, rng);
     let modes: Vec<i64> = split.mode.iter().map(|&m| i64::from(m)).collect();
-    let code = Tensor::from_slice(&modes)
-        .one_hot(codes as i64)
-        .to_kind(Kind::Float);
-    let input = Tensor::cat(&[obs, Tensor::from_slice(&eps).view([-1, 1]), code], 1);
-    let act = Tensor::from_slice(&split.act).view([-1, act_dim as i64]);
-    (input, act.clamp(-ACT_CLAMP, ACT_CLAMP).atanh())
+    let input = policy_input(obs, &Tensor::from_slice(&modes), codes, eps);
+    (input, pre_tanh(&split.act, act_dim))
+}
+
+/// One Adam step of the policy's mean toward `target`, rows weighted by `weight`
+/// (`None`: all rows alike); the weighted mean squared error before the step.
+fn mse_step(ppo: &mut PpoLearner, input: &Tensor, target: &Tensor, weight: Option<&Tensor>) -> f64 {
+    let err = (ppo.policy.mean.forward(input) - target).square();
+    let mse = match weight {
+        None => err.mean(Kind::Float),
+        Some(w) => {
+            let per_row = err.mean_dim(1, false, Kind::Float);
+            (per_row * w).sum(Kind::Float) / w.sum(Kind::Float).clamp_min(1.0)
+        }
+    };
+    ppo.opt.zero_grad();
+    mse.backward();
+    ppo.opt.step();
+    mse.double_value(&[])
 }
 
 /// `steps` minibatch steps (`batch` rows each) of behaviour cloning on `labeled`.
@@ -84,21 +129,74 @@ pub fn clone_steps(
     };
     for step in 0..steps {
         let idx = Tensor::from_slice(&sample_idx(rng, n, batch as i64));
-        let mean = ppo.policy.mean.forward(&input.index_select(0, &idx));
-        let mse = (mean - target.index_select(0, &idx))
-            .square()
-            .mean(Kind::Float);
-        ppo.opt.zero_grad();
-        mse.backward();
-        ppo.opt.step();
-        if step == 0 {
-            loss.first = mse.double_value(&[]);
-        }
-        if step + 1 == steps {
-            loss.last = mse.double_value(&[]);
-        }
+        let (x, y) = (input.index_select(0, &idx), target.index_select(0, &idx));
+        loss.record(step, steps, mse_step(ppo, &x, &y, None));
     }
     Some(loss)
+}
+
+/// `steps` minibatch steps (`batch` rows each) of behaviour cloning on the
+/// `unlabeled` demonstrations (`disc_x`: their rows as D reads them), each row under
+/// the most probable code of `qc`'s logits (Q_c's: [`qc_logits`]); rows `qc` gives
+/// less than [`ENCODED_MIN_PROB`] weigh nothing. The rows' own `mode` is never read.
+/// `None` when there is nothing to clone.
+pub fn clone_encoded_steps(
+    ppo: &mut PpoLearner,
+    (qc, disc_x): (&dyn Fn(&Tensor) -> Tensor, &Tensor),
+    unlabeled: &DemoSplit,
+    norm: &ObsNorm,
+    (d, use_eps): (Dims, bool),
+    (steps, batch): (usize, usize),
+    rng: &mut ChaCha8Rng,
+) -> Option<BcLoss> {
+    let n = unlabeled.mode.len();
+    if steps == 0 || n == 0 {
+        return None;
+    }
+    let mut loss = BcLoss {
+        first: f64::NAN,
+        last: f64::NAN,
+    };
+    for step in 0..steps {
+        let idx = sample_idx(rng, n as i64, batch as i64);
+        let rows = |v: &[f32], w: usize| -> Vec<f32> {
+            idx.iter()
+                .flat_map(|&i| &v[i as usize * w..(i as usize + 1) * w])
+                .copied()
+                .collect()
+        };
+        let (obs, act) = (rows(&unlabeled.obs, d.obs), rows(&unlabeled.act, d.act));
+        let (prob, code) = tch::no_grad(|| {
+            let x = disc_x.index_select(0, &Tensor::from_slice(&idx));
+            qc(&x).softmax(-1, Kind::Float).max_dim(1, false)
+        });
+        let weight = prob.ge(ENCODED_MIN_PROB).to_kind(Kind::Float);
+        let eps = draw_eps(idx.len(), use_eps, rng);
+        let x = policy_input(norm.apply(&obs), &code, d.codes, eps);
+        loss.record(
+            step,
+            steps,
+            mse_step(ppo, &x, &pre_tanh(&act, d.act), Some(&weight)),
+        );
+    }
+    Some(loss)
+}
+
+/// Q_c's logits of `disc` on D's inputs `x`, for [`clone_encoded_steps`].
+pub fn qc_logits(disc: &Discriminator) -> impl Fn(&Tensor) -> Tensor + '_ {
+    move |x| disc.forward(x).qc_logits
+}
+
+impl BcLoss {
+    /// Keeps `mse` if `step` is the first or the last of `steps`.
+    fn record(&mut self, step: usize, steps: usize, mse: f64) {
+        if step == 0 {
+            self.first = mse;
+        }
+        if step + 1 == steps {
+            self.last = mse;
+        }
+    }
 }
 
 #[cfg(test)]
@@ -160,6 +258,106 @@ mod tests {
                 "code {code:?}: action {a}, want {want}"
             );
         }
+    }
+
+    /// A learner for `obs_dim` inputs, one action and `k` codes.
+    fn learner(obs_dim: usize, k: usize) -> (nn::VarStore, nn::VarStore, PpoLearner) {
+        let (vs, pvs) = (
+            nn::VarStore::new(tch::Device::Cpu),
+            nn::VarStore::new(tch::Device::Cpu),
+        );
+        let cfg = PpoConfig::default();
+        let ppo = PpoLearner::new(
+            &vs,
+            &pvs,
+            obs_dim + 1 + k,
+            1,
+            k,
+            &cfg,
+            LatentPrior::Uniform,
+            1.0,
+        )
+        .expect("learner");
+        (vs, pvs, ppo)
+    }
+
+    /// Unlabeled rows at `[i / 200, 1]` acting `0.5 * side` (side +1 or -1, so the
+    /// policy's inputs cannot tell the two apart; only the code can), all (wrongly)
+    /// marked mode 0, for two codes; D's inputs are the actions alone.
+    fn two_sided_rows() -> (DemoSplit, Tensor, ObsNorm, Dims) {
+        let mut split = DemoSplit::default();
+        for i in 0..200 {
+            let side = if i % 2 == 0 { 1.0f32 } else { -1.0 };
+            split.obs.extend_from_slice(&[i as f32 / 200.0, 1.0]);
+            split.act.push(0.5 * side);
+            split.mode.push(0);
+        }
+        let x = Tensor::from_slice(&split.act).view([-1, 1]);
+        let norm = ObsNorm {
+            mean: vec![0.0; 2],
+            std: vec![1.0; 2],
+        };
+        let d = Dims {
+            obs: 2,
+            act: 1,
+            codes: 2,
+            disc_cols: 0,
+            disc_act: 1,
+        };
+        (split, x, norm, d)
+    }
+
+    /// An encoder that reads code 0 where the action is > 0 and code 1 where it is < 0,
+    /// `sure` saying how sure (logit gap 5, or 0.1: a 52% guess).
+    fn side_encoder(sure: bool) -> impl Fn(&Tensor) -> Tensor {
+        let gap = if sure { 5.0 } else { 0.1 };
+        move |x: &Tensor| Tensor::cat(&[x * gap, x * -gap], 1)
+    }
+
+    /// The unlabeled rows are cloned under the encoder's codes, not their own marks.
+    #[test]
+    fn unlabeled_rows_are_cloned_under_the_encoders_codes() {
+        tch::manual_seed(0);
+        let (split, x, norm, d) = two_sided_rows();
+        let (_vs, _pvs, mut ppo) = learner(2, 2);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let qc = side_encoder(true);
+        let enc = (&qc as &dyn Fn(&Tensor) -> Tensor, &x);
+        let loss =
+            clone_encoded_steps(&mut ppo, enc, &split, &norm, (d, true), (400, 64), &mut rng)
+                .expect("unlabeled data");
+        assert!(loss.last < 0.01 * loss.first, "{loss:?}");
+        for (code, want) in [([1.0f32, 0.0], 0.5f64), ([0.0, 1.0], -0.5)] {
+            let x = Tensor::from_slice(&[0.3f32, 1.0, 0.7, code[0], code[1]]).view([1, -1]);
+            let a = ppo.policy.mean.forward(&x).tanh().double_value(&[0, 0]);
+            assert!(
+                (a - want).abs() < 0.05,
+                "code {code:?}: action {a}, want {want}"
+            );
+        }
+    }
+
+    /// Rows the encoder is unsure of weigh nothing: the policy does not move.
+    #[test]
+    fn rows_the_encoder_is_unsure_of_are_not_cloned() {
+        tch::manual_seed(0);
+        let (split, x, norm, d) = two_sided_rows();
+        let (_vs, _pvs, mut ppo) = learner(2, 2);
+        let before = ppo
+            .policy
+            .mean
+            .forward(&Tensor::ones([1, 5], (Kind::Float, tch::Device::Cpu)));
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let qc = side_encoder(false);
+        let enc = (&qc as &dyn Fn(&Tensor) -> Tensor, &x);
+        let loss = clone_encoded_steps(&mut ppo, enc, &split, &norm, (d, true), (50, 64), &mut rng)
+            .expect("unlabeled data");
+        assert_eq!((loss.first, loss.last), (0.0, 0.0));
+        let after = ppo
+            .policy
+            .mean
+            .forward(&Tensor::ones([1, 5], (Kind::Float, tch::Device::Cpu)));
+        assert_eq!(before.double_value(&[0, 0]), after.double_value(&[0, 0]));
     }
 
     #[test]

@@ -297,6 +297,13 @@ impl Trainer<'_> {
         let (labeled, use_eps) = (&self.demos.labeled, self.cfg.method.use_eps);
         let at = (self.dims, use_eps);
         super::bc::clone_steps(ppo, labeled, &self.norm, at, (steps, mb), &mut self.st.rng);
+        // The same on the unlabeled demonstrations, under Q_c's codes.
+        let steps = self.cfg.ppo.bc_unlabeled_steps_per_iter;
+        let qc = super::bc::qc_logits(&self.nets.disc);
+        let enc = (&qc as &dyn Fn(&Tensor) -> Tensor, &self.expert.unlabeled);
+        let unlabeled = &self.demos.unlabeled;
+        let rng = &mut self.st.rng;
+        super::bc::clone_encoded_steps(ppo, enc, unlabeled, &self.norm, at, (steps, mb), rng);
         log.policy_loss = st.policy_loss;
         log.value_loss = st.value_loss;
         log.entropy = st.entropy;

@@ -46,6 +46,14 @@ impl TrainConfig {
         self.disc.check()?;
         self.run.check()?;
         self.remote.check()?;
+        range(
+            self.ppo.bc_unlabeled_steps_per_iter == 0
+                || (self.method.prior != LatentPrior::None && self.method.w_qc_labeled > 0.0),
+            "ppo.bc_unlabeled_steps_per_iter",
+            self.ppo.bc_unlabeled_steps_per_iter,
+            "needs a Q_c trained on the labeled demonstrations (method.w_qc_labeled > 0 \
+             and a latent code) to read the unlabeled rows' codes",
+        )?;
         Ok(CheckedConfig(self))
     }
 }

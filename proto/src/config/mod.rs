@@ -418,6 +418,11 @@ pub struct PpoConfig {
     /// train it (0: off, the paper's setting). Not in the paper: an auxiliary
     /// behaviour-cloning loss as in DAPG (Rajeswaran et al. 2018), on the labeled few.
     pub bc_steps_per_iter: usize,
+    /// Behaviour-cloning steps after every PPO update on the *unlabeled*
+    /// demonstrations, each row under the code Q_c reads for it (rows Q_c is at least
+    /// 90% sure of), beside `bc_steps_per_iter`'s (0: off, the paper's setting). Needs
+    /// a method whose Q_c learns from the labeled few (`method.w_qc_labeled > 0`).
+    pub bc_unlabeled_steps_per_iter: usize,
 }
 
 impl Default for PpoConfig {
@@ -438,6 +443,7 @@ impl Default for PpoConfig {
             normalize_rewards: false,
             bc_steps: 0,
             bc_steps_per_iter: 0,
+            bc_unlabeled_steps_per_iter: 0,
         }
     }
 }
@@ -860,6 +866,24 @@ mod tests {
         assert!(with(false).is_ok(), "{:?}", with(false));
         let e = with(true).unwrap_err().to_string();
         assert!(e.contains("method.disc_reward_qc_gate"), "{e}");
+    }
+
+    #[test]
+    fn cloning_under_q_c_s_codes_needs_a_q_c_trained_on_labels() {
+        let with = |w_qc_labeled: f64| {
+            ConfigBuilder::new()
+                .set("ppo.bc_unlabeled_steps_per_iter=5")
+                .unwrap()
+                .set(&format!("method.w_qc_labeled={w_qc_labeled}"))
+                .unwrap()
+                .build()
+        };
+        assert!(with(1.0).is_ok(), "{:?}", with(1.0));
+        let e = with(0.0).unwrap_err().to_string();
+        assert!(
+            e.contains("ppo.bc_unlabeled_steps_per_iter") && e.contains("w_qc_labeled"),
+            "{e}"
+        );
     }
 
     #[test]
