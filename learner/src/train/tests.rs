@@ -272,3 +272,32 @@ fn cloning_after_every_update_keeps_the_policy_near_the_labeled_demos() {
         assert!(with < 0.5 * without, "{backend:?}: {with} vs {without}");
     }
 }
+
+/// `ppo.bc_unlabeled_steps_per_iter` clones the unlabeled demonstrations under Q_c's
+/// codes: after the same iterations, the run that takes those steps is closer to them
+/// (measured under their true modes, which training never reads) than the run that
+/// does not, on both backends.
+#[test]
+fn cloning_under_q_c_s_codes_brings_the_policy_near_the_unlabeled_demos() {
+    for backend in [Backend::Fused, Backend::Tch] {
+        let error = |per_iter: usize| {
+            let kv = format!("ppo.bc_unlabeled_steps_per_iter={per_iter}");
+            // Enough D/Q steps for Q_c to be sure of most rows by the first update.
+            let cfg = small_run_with(backend, &[&kv, "disc.steps=100", "disc.lr=0.003"]);
+            let dir = tempfile::tempdir().expect("tmp");
+            let mut t = Trainer::new(&cfg, dir.path(), crate::logs::open, &mut Quiet, false)
+                .expect("trainer");
+            for it in 1..=4 {
+                t.iteration(it).expect("iteration");
+            }
+            let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
+            let at = (t.dims, cfg.method.use_eps);
+            let (unlabeled, ppo) = (&t.demos.unlabeled, &mut t.nets.ppo);
+            bc::clone_steps(ppo, unlabeled, &t.norm, at, (1, 4096), &mut rng)
+                .expect("unlabeled demos")
+                .first
+        };
+        let (without, with) = (error(0), error(100));
+        assert!(with < 0.5 * without, "{backend:?}: {with} vs {without}");
+    }
+}
