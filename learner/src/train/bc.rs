@@ -22,7 +22,8 @@
 //! no true label of an unlabeled row is read and the semi-supervised setting holds.
 //! Why: on Humanoid the labeled few are ~5 episodes, ~4 of them forward, and a clone
 //! of 4 running episodes falls within ~80 steps (bench/humanoid.md); the unlabeled
-//! set holds ~50 times more of every mode.
+//! set holds ~50 times more of every mode. `ppo.bc_unlabeled_balanced` draws those rows
+//! equally from each code Q_c reads instead of in the demonstrations' proportions.
 
 use crate::train::data::{Dims, ObsNorm, sample_idx};
 use crate::train::nets::Discriminator;
@@ -135,6 +136,18 @@ pub fn clone_steps(
     Some(loss)
 }
 
+/// An encoder's logits on D's inputs (Q_c's: [`qc_logits`]).
+pub type QcFn<'a> = &'a dyn Fn(&Tensor) -> Tensor;
+
+/// How [`clone_encoded_steps`] draws the unlabeled rows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EncodedDraw {
+    /// Uniformly, i.e. in the demonstrations' proportions of the modes.
+    Proportional,
+    /// Equally from each code Q_c reads (all rows read once per call).
+    Balanced,
+}
+
 /// `steps` minibatch steps (`batch` rows each) of behaviour cloning on the
 /// `unlabeled` demonstrations (`disc_x`: their rows as D reads them), each row under
 /// the most probable code of `qc`'s logits (Q_c's: [`qc_logits`]); rows `qc` gives
@@ -142,7 +155,7 @@ pub fn clone_steps(
 /// `None` when there is nothing to clone.
 pub fn clone_encoded_steps(
     ppo: &mut PpoLearner,
-    (qc, disc_x): (&dyn Fn(&Tensor) -> Tensor, &Tensor),
+    (qc, disc_x, draw): (QcFn<'_>, &Tensor, EncodedDraw),
     unlabeled: &DemoSplit,
     norm: &ObsNorm,
     (d, use_eps): (Dims, bool),
@@ -153,12 +166,34 @@ pub fn clone_encoded_steps(
     if steps == 0 || n == 0 {
         return None;
     }
+    let by_code = (draw == EncodedDraw::Balanced).then(|| rows_by_code(qc, disc_x, d.codes));
+    if by_code
+        .as_ref()
+        .is_some_and(|b| b.iter().all(Vec::is_empty))
+    {
+        return None;
+    }
     let mut loss = BcLoss {
         first: f64::NAN,
         last: f64::NAN,
     };
     for step in 0..steps {
-        let idx = sample_idx(rng, n as i64, batch as i64);
+        let (idx, code, weight) = match &by_code {
+            Some(by_code) => {
+                let (idx, code) = draw_balanced(by_code, batch, rng);
+                (idx, Tensor::from_slice(&code), None)
+            }
+            None => {
+                let idx = sample_idx(rng, n as i64, batch as i64);
+                let (prob, code) =
+                    read_codes(qc, &disc_x.index_select(0, &Tensor::from_slice(&idx)));
+                (
+                    idx,
+                    code,
+                    Some(prob.ge(ENCODED_MIN_PROB).to_kind(Kind::Float)),
+                )
+            }
+        };
         let rows = |v: &[f32], w: usize| -> Vec<f32> {
             idx.iter()
                 .flat_map(|&i| &v[i as usize * w..(i as usize + 1) * w])
@@ -166,20 +201,54 @@ pub fn clone_encoded_steps(
                 .collect()
         };
         let (obs, act) = (rows(&unlabeled.obs, d.obs), rows(&unlabeled.act, d.act));
-        let (prob, code) = tch::no_grad(|| {
-            let x = disc_x.index_select(0, &Tensor::from_slice(&idx));
-            qc(&x).softmax(-1, Kind::Float).max_dim(1, false)
-        });
-        let weight = prob.ge(ENCODED_MIN_PROB).to_kind(Kind::Float);
         let eps = draw_eps(idx.len(), use_eps, rng);
         let x = policy_input(norm.apply(&obs), &code, d.codes, eps);
-        loss.record(
-            step,
-            steps,
-            mse_step(ppo, &x, &pre_tanh(&act, d.act), Some(&weight)),
-        );
+        let mse = mse_step(ppo, &x, &pre_tanh(&act, d.act), weight.as_ref());
+        loss.record(step, steps, mse);
     }
     Some(loss)
+}
+
+/// The probability and index of the most probable code of `qc` on `x`.
+fn read_codes(qc: QcFn<'_>, x: &Tensor) -> (Tensor, Tensor) {
+    tch::no_grad(|| qc(x).softmax(-1, Kind::Float).max_dim(1, false))
+}
+
+/// Rows per read: bounds the memory of reading every unlabeled row.
+const READ_CHUNK: i64 = 16_384;
+
+/// The rows of `disc_x` under each of the `codes` codes `qc` reads for them, rows
+/// it gives less than [`ENCODED_MIN_PROB`] left out.
+fn rows_by_code(qc: QcFn<'_>, disc_x: &Tensor, codes: usize) -> Vec<Vec<i64>> {
+    let mut by_code = vec![Vec::new(); codes];
+    let n = disc_x.size()[0];
+    for start in (0..n).step_by(READ_CHUNK as usize) {
+        let len = READ_CHUNK.min(n - start);
+        let (prob, code) = read_codes(qc, &disc_x.narrow(0, start, len));
+        let prob = Vec::<f32>::try_from(&prob).unwrap_or_default();
+        let code = Vec::<i64>::try_from(&code).unwrap_or_default();
+        for (i, (p, c)) in prob.iter().zip(&code).enumerate() {
+            if f64::from(*p) >= ENCODED_MIN_PROB {
+                by_code[*c as usize].push(start + i as i64);
+            }
+        }
+    }
+    by_code
+}
+
+/// `batch` rows drawn equally from each non-empty list of `by_code` (its index is
+/// the rows' code), and their codes.
+fn draw_balanced(by_code: &[Vec<i64>], batch: usize, rng: &mut ChaCha8Rng) -> (Vec<i64>, Vec<i64>) {
+    let present: Vec<usize> = (0..by_code.len())
+        .filter(|&c| !by_code[c].is_empty())
+        .collect();
+    let (mut idx, mut code) = (Vec::with_capacity(batch), Vec::with_capacity(batch));
+    for j in 0..batch {
+        let c = present[j % present.len()];
+        idx.push(by_code[c][rng.random_range(0..by_code[c].len())]);
+        code.push(c as i64);
+    }
+    (idx, code)
 }
 
 /// Q_c's logits of `disc` on D's inputs `x`, for [`clone_encoded_steps`].
@@ -322,7 +391,11 @@ mod tests {
         let (_vs, _pvs, mut ppo) = learner(2, 2);
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let qc = side_encoder(true);
-        let enc = (&qc as &dyn Fn(&Tensor) -> Tensor, &x);
+        let enc = (
+            &qc as &dyn Fn(&Tensor) -> Tensor,
+            &x,
+            EncodedDraw::Proportional,
+        );
         let loss =
             clone_encoded_steps(&mut ppo, enc, &split, &norm, (d, true), (400, 64), &mut rng)
                 .expect("unlabeled data");
@@ -349,7 +422,11 @@ mod tests {
             .forward(&Tensor::ones([1, 5], (Kind::Float, tch::Device::Cpu)));
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let qc = side_encoder(false);
-        let enc = (&qc as &dyn Fn(&Tensor) -> Tensor, &x);
+        let enc = (
+            &qc as &dyn Fn(&Tensor) -> Tensor,
+            &x,
+            EncodedDraw::Proportional,
+        );
         let loss = clone_encoded_steps(&mut ppo, enc, &split, &norm, (d, true), (50, 64), &mut rng)
             .expect("unlabeled data");
         assert_eq!((loss.first, loss.last), (0.0, 0.0));
@@ -358,6 +435,36 @@ mod tests {
             .mean
             .forward(&Tensor::ones([1, 5], (Kind::Float, tch::Device::Cpu)));
         assert_eq!(before.double_value(&[0, 0]), after.double_value(&[0, 0]));
+    }
+
+    /// Balanced draws take each code Q_c reads equally often, whatever its share, and
+    /// only the rows it is sure of.
+    #[test]
+    fn balanced_draws_take_each_read_code_equally() {
+        // 90 rows read as code 0, 10 as code 1, 10 unsure (gap 0.1), none as code 2.
+        let side: Vec<f32> = (0..110)
+            .map(|i| match i {
+                0..90 => 1.0,
+                90..100 => -1.0,
+                _ => 0.01,
+            })
+            .collect();
+        let x = Tensor::from_slice(&side).view([-1, 1]);
+        let qc = |x: &Tensor| Tensor::cat(&[x * 5.0, x * -5.0, x * 0.0 - 10.0], 1);
+        let by_code = rows_by_code(&qc, &x, 3);
+        assert_eq!(by_code[0], (0..90).collect::<Vec<i64>>());
+        assert_eq!(by_code[1], (90..100).collect::<Vec<i64>>());
+        assert!(by_code[2].is_empty());
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let (idx, code) = draw_balanced(&by_code, 1000, &mut rng);
+        assert_eq!(code.iter().filter(|&&c| c == 0).count(), 500);
+        assert_eq!(code.iter().filter(|&&c| c == 1).count(), 500);
+        for (i, c) in idx.iter().zip(&code) {
+            assert!(
+                by_code[*c as usize].contains(i),
+                "row {i} drawn under code {c}"
+            );
+        }
     }
 
     #[test]

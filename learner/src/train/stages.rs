@@ -300,7 +300,16 @@ impl Trainer<'_> {
         // The same on the unlabeled demonstrations, under Q_c's codes.
         let steps = self.cfg.ppo.bc_unlabeled_steps_per_iter;
         let qc = super::bc::qc_logits(&self.nets.disc);
-        let enc = (&qc as &dyn Fn(&Tensor) -> Tensor, &self.expert.unlabeled);
+        let draw = if self.cfg.ppo.bc_unlabeled_balanced {
+            super::bc::EncodedDraw::Balanced
+        } else {
+            super::bc::EncodedDraw::Proportional
+        };
+        let enc = (
+            &qc as &dyn Fn(&Tensor) -> Tensor,
+            &self.expert.unlabeled,
+            draw,
+        );
         let unlabeled = &self.demos.unlabeled;
         let rng = &mut self.st.rng;
         super::bc::clone_encoded_steps(ppo, enc, unlabeled, &self.norm, at, (steps, mb), rng);

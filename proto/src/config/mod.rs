@@ -423,6 +423,9 @@ pub struct PpoConfig {
     /// 90% sure of), beside `bc_steps_per_iter`'s (0: off, the paper's setting). Needs
     /// a method whose Q_c learns from the labeled few (`method.w_qc_labeled > 0`).
     pub bc_unlabeled_steps_per_iter: usize,
+    /// Draw those rows equally from each code Q_c reads (every unlabeled row read once
+    /// per update), not in the demonstrations' proportions of the modes (false).
+    pub bc_unlabeled_balanced: bool,
 }
 
 impl Default for PpoConfig {
@@ -444,6 +447,7 @@ impl Default for PpoConfig {
             bc_steps: 0,
             bc_steps_per_iter: 0,
             bc_unlabeled_steps_per_iter: 0,
+            bc_unlabeled_balanced: false,
         }
     }
 }
