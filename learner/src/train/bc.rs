@@ -292,22 +292,7 @@ mod tests {
             mean: vec![0.0; obs_dim],
             std: vec![1.0; obs_dim],
         };
-        let (vs, pvs) = (
-            nn::VarStore::new(tch::Device::Cpu),
-            nn::VarStore::new(tch::Device::Cpu),
-        );
-        let cfg = PpoConfig::default();
-        let mut ppo = PpoLearner::new(
-            &vs,
-            &pvs,
-            obs_dim + 1 + k,
-            act_dim,
-            k,
-            &cfg,
-            LatentPrior::Uniform,
-            1.0,
-        )
-        .expect("learner");
+        let (_vs, _pvs, mut ppo) = learner(obs_dim, k);
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let d = Dims {
             obs: obs_dim,
@@ -319,6 +304,11 @@ mod tests {
         let loss = clone_steps(&mut ppo, &split, &norm, (d, true), (400, 64), &mut rng)
             .expect("labeled data");
         assert!(loss.last < 0.01 * loss.first, "{loss:?}");
+        assert_codes_act_half_and_minus_half(&ppo);
+    }
+
+    /// At the input `[0.3, 1.0]` (eps 0.7) code 0 acts 0.5 and code 1 acts -0.5.
+    fn assert_codes_act_half_and_minus_half(ppo: &PpoLearner) {
         for (code, want) in [([1.0f32, 0.0], 0.5f64), ([0.0, 1.0], -0.5)] {
             let x = Tensor::from_slice(&[0.3f32, 1.0, 0.7, code[0], code[1]]).view([1, -1]);
             let a = ppo.policy.mean.forward(&x).tanh().double_value(&[0, 0]);
@@ -391,23 +381,12 @@ mod tests {
         let (_vs, _pvs, mut ppo) = learner(2, 2);
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let qc = side_encoder(true);
-        let enc = (
-            &qc as &dyn Fn(&Tensor) -> Tensor,
-            &x,
-            EncodedDraw::Proportional,
-        );
+        let enc = (&qc as QcFn<'_>, &x, EncodedDraw::Proportional);
         let loss =
             clone_encoded_steps(&mut ppo, enc, &split, &norm, (d, true), (400, 64), &mut rng)
                 .expect("unlabeled data");
         assert!(loss.last < 0.01 * loss.first, "{loss:?}");
-        for (code, want) in [([1.0f32, 0.0], 0.5f64), ([0.0, 1.0], -0.5)] {
-            let x = Tensor::from_slice(&[0.3f32, 1.0, 0.7, code[0], code[1]]).view([1, -1]);
-            let a = ppo.policy.mean.forward(&x).tanh().double_value(&[0, 0]);
-            assert!(
-                (a - want).abs() < 0.05,
-                "code {code:?}: action {a}, want {want}"
-            );
-        }
+        assert_codes_act_half_and_minus_half(&ppo);
     }
 
     /// Rows the encoder is unsure of weigh nothing: the policy does not move.
@@ -422,11 +401,7 @@ mod tests {
             .forward(&Tensor::ones([1, 5], (Kind::Float, tch::Device::Cpu)));
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let qc = side_encoder(false);
-        let enc = (
-            &qc as &dyn Fn(&Tensor) -> Tensor,
-            &x,
-            EncodedDraw::Proportional,
-        );
+        let enc = (&qc as QcFn<'_>, &x, EncodedDraw::Proportional);
         let loss = clone_encoded_steps(&mut ppo, enc, &split, &norm, (d, true), (50, 64), &mut rng)
             .expect("unlabeled data");
         assert_eq!((loss.first, loss.last), (0.0, 0.0));
@@ -469,21 +444,7 @@ mod tests {
 
     #[test]
     fn nothing_to_clone_is_no_warm_start() {
-        let (vs, pvs) = (
-            nn::VarStore::new(tch::Device::Cpu),
-            nn::VarStore::new(tch::Device::Cpu),
-        );
-        let mut ppo = PpoLearner::new(
-            &vs,
-            &pvs,
-            4,
-            1,
-            2,
-            &PpoConfig::default(),
-            LatentPrior::Uniform,
-            1.0,
-        )
-        .expect("learner");
+        let (_vs, _pvs, mut ppo) = learner(1, 2);
         let norm = ObsNorm {
             mean: vec![0.0],
             std: vec![1.0],

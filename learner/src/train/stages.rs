@@ -305,11 +305,7 @@ impl Trainer<'_> {
         } else {
             super::bc::EncodedDraw::Proportional
         };
-        let enc = (
-            &qc as &dyn Fn(&Tensor) -> Tensor,
-            &self.expert.unlabeled,
-            draw,
-        );
+        let enc = (&qc as super::bc::QcFn<'_>, &self.expert.unlabeled, draw);
         let unlabeled = &self.demos.unlabeled;
         let rng = &mut self.st.rng;
         super::bc::clone_encoded_steps(ppo, enc, unlabeled, &self.norm, at, (steps, mb), rng);

@@ -245,6 +245,29 @@ fn a_checkpoint_of_either_backend_resumes_on_the_other() {
     }
 }
 
+/// The cloning error on the demonstrations `split` picks of the policy after four
+/// iterations of a small run with `extra` settings (one minibatch of 4096 rows, under
+/// the rows' true modes).
+fn cloning_error_after_four_iterations(
+    backend: Backend,
+    extra: &[&str],
+    split: fn(&Demos) -> &ess_envs::DemoSplit,
+) -> f64 {
+    let cfg = small_run_with(backend, extra);
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut t =
+        Trainer::new(&cfg, dir.path(), crate::logs::open, &mut Quiet, false).expect("trainer");
+    for it in 1..=4 {
+        t.iteration(it).expect("iteration");
+    }
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
+    let at = (t.dims, cfg.method.use_eps);
+    let (rows, ppo) = (split(&t.demos), &mut t.nets.ppo);
+    bc::clone_steps(ppo, rows, &t.norm, at, (1, 4096), &mut rng)
+        .expect("demos")
+        .first
+}
+
 /// `ppo.bc_steps_per_iter` keeps the policy near the labeled demonstrations while the
 /// rewards train it: after the same iterations (no warm start), the cloning error of
 /// the run that takes those steps is well under that of the run that does not, on
@@ -254,19 +277,7 @@ fn cloning_after_every_update_keeps_the_policy_near_the_labeled_demos() {
     for backend in [Backend::Fused, Backend::Tch] {
         let error = |per_iter: usize| {
             let kv = format!("ppo.bc_steps_per_iter={per_iter}");
-            let cfg = small_run_with(backend, &[&kv]);
-            let dir = tempfile::tempdir().expect("tmp");
-            let mut t = Trainer::new(&cfg, dir.path(), crate::logs::open, &mut Quiet, false)
-                .expect("trainer");
-            for it in 1..=4 {
-                t.iteration(it).expect("iteration");
-            }
-            let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
-            let at = (t.dims, cfg.method.use_eps);
-            let (labeled, ppo) = (&t.demos.labeled, &mut t.nets.ppo);
-            bc::clone_steps(ppo, labeled, &t.norm, at, (1, 4096), &mut rng)
-                .expect("labeled demos")
-                .first
+            cloning_error_after_four_iterations(backend, &[&kv], |d| &d.labeled)
         };
         let (without, with) = (error(0), error(100));
         assert!(with < 0.5 * without, "{backend:?}: {with} vs {without}");
@@ -283,19 +294,8 @@ fn cloning_under_q_c_s_codes_brings_the_policy_near_the_unlabeled_demos() {
         let error = |per_iter: usize| {
             let kv = format!("ppo.bc_unlabeled_steps_per_iter={per_iter}");
             // Enough D/Q steps for Q_c to be sure of most rows by the first update.
-            let cfg = small_run_with(backend, &[&kv, "disc.steps=100", "disc.lr=0.003"]);
-            let dir = tempfile::tempdir().expect("tmp");
-            let mut t = Trainer::new(&cfg, dir.path(), crate::logs::open, &mut Quiet, false)
-                .expect("trainer");
-            for it in 1..=4 {
-                t.iteration(it).expect("iteration");
-            }
-            let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
-            let at = (t.dims, cfg.method.use_eps);
-            let (unlabeled, ppo) = (&t.demos.unlabeled, &mut t.nets.ppo);
-            bc::clone_steps(ppo, unlabeled, &t.norm, at, (1, 4096), &mut rng)
-                .expect("unlabeled demos")
-                .first
+            let extra = [kv.as_str(), "disc.steps=100", "disc.lr=0.003"];
+            cloning_error_after_four_iterations(backend, &extra, |d| &d.unlabeled)
         };
         let (without, with) = (error(0), error(100));
         assert!(with < 0.5 * without, "{backend:?}: {with} vs {without}");
